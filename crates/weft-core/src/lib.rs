@@ -1,0 +1,29 @@
+//! # weft-core — the vocabulary every other weft crate speaks
+//!
+//! * [`Real`] is `f64` everywhere; vectors are glam's [`DVec3`].
+//! * Vertex and triangle indices are `u32` **input ids**: the position of the
+//!   vertex / triangle in the scene's concatenated input meshes. Every key that
+//!   decides an order (stencil keys, fold orders, output order) is built from
+//!   input ids, so results never depend on how the mesh is split or renumbered.
+//! * [`TriMesh`] is a plain indexed triangle mesh; [`topology::Topology`] derives
+//!   edges, hinges, adjacency and boundary from it; [`validate`] checks a mesh and
+//!   names the offending element in every error.
+//! * [`StencilKey`] is the global, partition-independent key of a contact stencil.
+
+pub mod mesh;
+pub mod stencil;
+pub mod topology;
+pub mod validate;
+
+pub use glam::DVec3;
+pub use mesh::TriMesh;
+pub use stencil::{StencilKey, StencilKind};
+pub use topology::{Hinge, Topology};
+pub use validate::{validate, MeshError, MeshWarning};
+
+/// The one floating-point type of weft.
+pub type Real = f64;
+
+/// Marker for "no such element" in `u32` index arrays (e.g. the missing face of a
+/// boundary edge).
+pub const NONE: u32 = u32::MAX;

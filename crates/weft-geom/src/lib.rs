@@ -1,0 +1,5 @@
+//! # weft-geom — pure geometry, no simulation state
+//!
+//! Distances with gradients, 26-DOPs and their BVH, the conservative continuous
+//! proximity predicate used by the narrow phase (and by `weft ccd-bench`),
+//! exact triangle–triangle intersection, and the CCD benchmark reader.

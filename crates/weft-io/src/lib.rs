@@ -1,0 +1,1 @@
+//! # weft-io — file formats

@@ -1,0 +1,3 @@
+//! # weft-sim — the ACM engine
+
+pub mod materials;
