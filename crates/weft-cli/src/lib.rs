@@ -1,0 +1,61 @@
+//! # weft-cli — the `weft` command-line tool
+//!
+//! `main` only calls [`run`], so every command is callable from tests.
+//! Errors are printed as `error: …` on standard error with exit code 1
+//! (2 for command-line usage errors).
+
+pub mod commands;
+
+use std::ffi::OsString;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// weft — cloth and thin shells that never miss a collision.
+#[derive(Debug, Parser)]
+#[command(name = "weft", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Simulate a scene and write frames, stats and a summary.
+    Run(commands::run::RunArgs),
+    /// Run the exact continuous proximity test on CCD benchmark folders.
+    CcdBench(commands::ccd_bench::CcdBenchArgs),
+    /// Report intersecting triangles in frame files.
+    Check(commands::check::CheckArgs),
+}
+
+/// Parses `args` (program name first) and runs the command.
+pub fn run<I, T>(args: I) -> ExitCode
+where
+    I: IntoIterator<Item = T>,
+    T: Into<OsString> + Clone,
+{
+    let cli = match Cli::try_parse_from(args) {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = e.print();
+            return if e.use_stderr() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::SUCCESS
+            };
+        }
+    };
+    let result = match cli.command {
+        Command::Run(a) => commands::run::run(a),
+        Command::CcdBench(a) => commands::ccd_bench::run(a),
+        Command::Check(a) => commands::check::run(a),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(1)
+        }
+    }
+}

@@ -6,7 +6,7 @@
 //!   decides an order (stencil keys, fold orders, output order) is built from
 //!   input ids, so results never depend on how the mesh is split or renumbered.
 //! * [`TriMesh`] is a plain indexed triangle mesh; [`topology::Topology`] derives
-//!   edges, hinges, adjacency and boundary from it; [`validate`] checks a mesh and
+//!   edges, hinges, adjacency and boundary from it; [`validate`](fn@validate) checks a mesh and
 //!   names the offending element in every error.
 //! * [`StencilKey`] is the global, partition-independent key of a contact stencil.
 

@@ -1,5 +1,8 @@
 //! Triangle-mesh topology: edges, hinges, adjacency, boundary.
-//! (Construction is implemented in `Topology::build`.)
+//!
+//! [`Topology::build`] derives everything in one sort of the (edge, face)
+//! incidences, so all outputs are in a deterministic order (by sorted edge, then
+//! by face id) that does not depend on hashing.
 
 /// A bending hinge: an interior edge with its two wing vertices.
 ///
@@ -44,6 +47,8 @@ impl Topology {
     ///
     /// Fails on an index out of range, a triangle that repeats a vertex, or an
     /// edge shared by more than two triangles (non-manifold), naming the element.
+    /// Geometry (zero area) and duplicate faces are not checked here: run
+    /// [`crate::validate`](fn@crate::validate) on user input first.
     pub fn build(num_vertices: usize, triangles: &[[u32; 3]]) -> Result<Self, MeshError> {
         for (f, t) in triangles.iter().enumerate() {
             for &v in t {

@@ -3,3 +3,10 @@
 //! Distances with gradients, 26-DOPs and their BVH, the conservative continuous
 //! proximity predicate used by the narrow phase (and by `weft ccd-bench`),
 //! exact triangle–triangle intersection, and the CCD benchmark reader.
+
+pub mod bvh;
+pub mod ccd;
+pub mod distance;
+pub mod dop;
+pub mod intersections;
+pub mod tri_tri;

@@ -1,3 +1,42 @@
 //! # weft-sim — the ACM engine
+//!
+//! Asynchronous Contact Mechanics (`acm-spec.md`): an asynchronous variational
+//! integrator whose forces each tick on their own integer clock, nested penalty
+//! layers as a contact barrier, and speculative collision windows with rollback.
+//!
+//! | module | responsibility |
+//! |---|---|
+//! | [`clock`] | integer time: ticks, the lattice, windows |
+//! | [`materials`] | stretch, bend, damping, lumped masses, stable step |
+//! | [`internal`] | internal stencils split into partitions, ordered per-vertex folds |
+//! | [`kinematics`] | scripted motion of obstacles and pinned vertices |
+//! | [`layers`] | the penalty-layer schedule, active-layer set, penalty and friction kicks |
+//! | [`trajectory`] | per-window breakpoint storage under a memory budget |
+//! | [`broad`] | 26-DOP BVH broad phase with stencil-level filtering |
+//! | [`engine`] | the window / detect / rollback / commit loop |
+//! | [`diagnostics`] | per-window statistics |
+//! | [`executor`] | the `Executor` trait and the `Serial` executor |
+//! | [`world`] | building a validated world from a spec |
+//! | [`hash`] | the state hash |
 
+pub mod broad;
+pub mod clock;
+pub mod config;
+pub mod diagnostics;
+pub mod engine;
+pub mod error;
+pub mod executor;
+pub mod hash;
+pub mod internal;
+pub mod kinematics;
+pub mod layers;
 pub mod materials;
+pub mod trajectory;
+pub mod world;
+
+pub use config::{ContactConfig, LimitsConfig, TimeConfig};
+pub use diagnostics::WindowStats;
+pub use engine::{Engine, RunTotals};
+pub use error::SimError;
+pub use executor::{Executor, Serial};
+pub use world::{ObjectKind, ObjectSpec, PinSpec, World, WorldSpec};

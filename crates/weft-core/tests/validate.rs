@@ -1,0 +1,232 @@
+//! `validate`: one test per error and warning class, each checking that the
+//! message names the element with 0-based indices.
+
+use weft_core::{validate, DVec3, MeshError, MeshWarning, TriMesh};
+
+/// Unit square in z = 0 split into two counter-clockwise triangles.
+fn square() -> TriMesh {
+    TriMesh::new(
+        vec![
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(1.0, 1.0, 0.0),
+            DVec3::new(0.0, 1.0, 0.0),
+        ],
+        vec![[0, 1, 2], [0, 2, 3]],
+    )
+}
+
+fn message(err: &MeshError) -> String {
+    let msg = err.to_string();
+    assert!(
+        msg.contains("0-based"),
+        "message must say indices are 0-based: {msg}"
+    );
+    msg
+}
+
+#[test]
+fn valid_square_has_no_warnings() {
+    assert_eq!(validate(&square()), Ok(vec![]));
+}
+
+#[test]
+fn empty_mesh() {
+    let mesh = TriMesh::new(vec![DVec3::ZERO], vec![]);
+    assert_eq!(validate(&mesh), Err(MeshError::Empty));
+    assert!(MeshError::Empty.to_string().contains("no triangles"));
+}
+
+#[test]
+fn non_finite_coordinate_names_vertex_and_axis() {
+    let mut mesh = square();
+    mesh.positions[2].y = f64::INFINITY;
+    let err = validate(&mesh).unwrap_err();
+    assert!(matches!(
+        err,
+        MeshError::NonFiniteCoordinate {
+            vertex: 2,
+            axis: 'y',
+            ..
+        }
+    ));
+    let msg = message(&err);
+    assert!(
+        msg.contains("vertex 2") && msg.contains(" y ") && msg.contains("inf"),
+        "{msg}"
+    );
+    mesh.positions[1].x = f64::NAN;
+    let msg = message(&validate(&mesh).unwrap_err());
+    assert!(msg.contains("vertex 1") && msg.contains("NaN"), "{msg}");
+}
+
+#[test]
+fn index_out_of_range() {
+    let mut mesh = square();
+    mesh.triangles[1] = [0, 2, 7];
+    let err = validate(&mesh).unwrap_err();
+    assert_eq!(
+        err,
+        MeshError::IndexOutOfRange {
+            triangle: 1,
+            index: 7,
+            num_vertices: 4
+        }
+    );
+    assert_eq!(err.triangle(), Some(1));
+    let msg = message(&err);
+    assert!(
+        msg.contains("triangle 1") && msg.contains("vertex 7"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn repeated_vertex() {
+    let mut mesh = square();
+    mesh.triangles[0] = [0, 1, 0];
+    let err = validate(&mesh).unwrap_err();
+    assert_eq!(
+        err,
+        MeshError::RepeatedVertex {
+            triangle: 0,
+            vertices: [0, 1, 0]
+        }
+    );
+    assert!(message(&err).contains("triangle 0 (vertices 0, 1, 0"));
+}
+
+#[test]
+fn degenerate_triangle_names_vertices_and_area() {
+    let mut mesh = square();
+    // Vertex 4 lies on the edge 0-1: triangle [0, 1, 4] is collinear.
+    mesh.positions.push(DVec3::new(0.5, 0.0, 0.0));
+    mesh.triangles.push([0, 1, 4]);
+    let err = validate(&mesh).unwrap_err();
+    assert!(matches!(
+        err,
+        MeshError::DegenerateTriangle { triangle: 2, vertices: [0, 1, 4], area, .. } if area == 0.0
+    ));
+    let msg = message(&err);
+    assert!(
+        msg.contains("triangle 2 (vertices 0, 1, 4") && msg.contains("zero area (area 0"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn degenerate_tolerance_is_relative_to_bounding_box() {
+    // The same tiny-but-regular square is fine at any scale.
+    for scale in [1e-6, 1.0, 1e6] {
+        let mut mesh = square();
+        for p in &mut mesh.positions {
+            *p *= scale;
+        }
+        assert_eq!(validate(&mesh), Ok(vec![]), "scale {scale}");
+    }
+    // A sliver with area 1e-16 in a unit box is degenerate.
+    let mut mesh = square();
+    mesh.positions.push(DVec3::new(0.5, 1e-16, 0.0));
+    mesh.triangles.push([0, 1, 4]);
+    assert!(matches!(
+        validate(&mesh),
+        Err(MeshError::DegenerateTriangle { triangle: 2, .. })
+    ));
+}
+
+#[test]
+fn duplicate_triangle_names_both() {
+    let mut mesh = square();
+    mesh.triangles.push([2, 0, 1]); // same vertex set as triangle 0
+    let err = validate(&mesh).unwrap_err();
+    assert_eq!(
+        err,
+        MeshError::DuplicateTriangle {
+            triangle: 2,
+            first: 0,
+            vertices: [2, 0, 1]
+        }
+    );
+    let msg = message(&err);
+    assert!(
+        msg.contains("triangle 2") && msg.contains("triangle 0"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn non_manifold_edge() {
+    let mut mesh = square();
+    mesh.positions.push(DVec3::new(0.5, 0.5, 1.0));
+    mesh.triangles.push([0, 2, 4]); // third triangle on edge 0-2
+    let err = validate(&mesh).unwrap_err();
+    assert_eq!(
+        err,
+        MeshError::NonManifoldEdge {
+            edge: [0, 2],
+            triangles: vec![0, 1, 2]
+        }
+    );
+    assert_eq!(err.triangle(), Some(2));
+    assert!(message(&err).contains("edge (0, 2)"));
+}
+
+#[test]
+fn checks_run_in_documented_order() {
+    // Non-finite coordinate wins over an out-of-range index.
+    let mut mesh = square();
+    mesh.positions[3].z = f64::NAN;
+    mesh.triangles[1] = [0, 0, 9];
+    assert!(matches!(
+        validate(&mesh),
+        Err(MeshError::NonFiniteCoordinate { .. })
+    ));
+    // Out-of-range (triangle 1) wins over a repeated vertex (triangle 0).
+    let mut mesh = square();
+    mesh.triangles[0] = [0, 0, 1];
+    mesh.triangles[1] = [0, 2, 9];
+    assert!(matches!(
+        validate(&mesh),
+        Err(MeshError::IndexOutOfRange { triangle: 1, .. })
+    ));
+}
+
+#[test]
+fn unreferenced_vertices_warning() {
+    let mut mesh = square();
+    mesh.positions
+        .extend((0..7).map(|i| DVec3::new(2.0 + i as f64, 0.0, 0.0)));
+    let warnings = validate(&mesh).unwrap();
+    assert_eq!(
+        warnings,
+        vec![MeshWarning::UnreferencedVertices {
+            count: 7,
+            first: vec![4, 5, 6, 7, 8]
+        }]
+    );
+    let msg = warnings[0].to_string();
+    assert!(
+        msg.contains("7 vertices") && msg.contains("4, 5, 6, 7, 8") && msg.contains("0-based"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn inconsistent_orientation_warning() {
+    let mut mesh = square();
+    mesh.triangles[1] = [0, 3, 2]; // flipped: both faces now traverse 0→2
+    let warnings = validate(&mesh).unwrap();
+    assert_eq!(
+        warnings,
+        vec![MeshWarning::InconsistentOrientation {
+            count: 1,
+            edge: [2, 0],
+            triangles: [0, 1]
+        }]
+    );
+    let msg = warnings[0].to_string();
+    assert!(
+        msg.contains("edge (2, 0)") && msg.contains("triangles 0 and 1") && msg.contains("0-based"),
+        "{msg}"
+    );
+}

@@ -1,0 +1,90 @@
+//! Top-down construction.
+//!
+//! Each node's range of leaves is split at its median along the axis (x, y or z)
+//! where the leaves' DOP centers spread most; leaves are ordered by
+//! `(center[axis], leaf id)` with `f64::total_cmp`, a total order, so the split
+//! is unique and the tree does not depend on the input's incidental properties
+//! (NaN centers of empty DOPs included). The median split gives depth
+//! `ceil(log2(n / MAX_LEAF_SIZE)) + 1`; an explicit stack avoids recursion.
+//! Cost `O(n log n)`.
+
+use super::{Bvh, Node, LEAF, MAX_LEAF_SIZE};
+use crate::dop::Dop26;
+
+impl Bvh {
+    /// Builds the hierarchy over `leaves` (leaf `i` = `leaves[i]`).
+    ///
+    /// Deterministic: the same input gives the same tree. Leaf counts beyond
+    /// `u32::MAX - 1` are not supported (ids are `u32`); such input is truncated
+    /// to that many leaves.
+    pub fn build(leaves: &[Dop26]) -> Bvh {
+        let n = leaves.len().min(u32::MAX as usize - 1);
+        let leaves = &leaves[..n];
+        if n == 0 {
+            return Bvh::default();
+        }
+        // (center, id) pairs, permuted in place so the splits read memory
+        // sequentially; `order` is their id column at the end.
+        let mut items: Vec<([f64; 3], u32)> = leaves
+            .iter()
+            .enumerate()
+            .map(|(i, d)| (d.center().to_array(), i as u32))
+            .collect();
+        let mut nodes = Vec::with_capacity(2 * n.div_ceil(MAX_LEAF_SIZE));
+        nodes.push(Node {
+            start: 0,
+            count: n as u32,
+            child: LEAF,
+        });
+        let mut stack = vec![0usize];
+        while let Some(k) = stack.pop() {
+            let node = nodes[k];
+            if node.count as usize <= MAX_LEAF_SIZE {
+                continue;
+            }
+            let range = node.range();
+            // axis of largest center extent (f64::max / min ignore NaN)
+            let mut lo = [f64::INFINITY; 3];
+            let mut hi = [f64::NEG_INFINITY; 3];
+            for (c, _) in &items[range.clone()] {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(c[a]);
+                    hi[a] = hi[a].max(c[a]);
+                }
+            }
+            let ext = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
+            let mut axis = 0;
+            for a in 1..3 {
+                if ext[a] > ext[axis] || (ext[axis].is_nan() && !ext[a].is_nan()) {
+                    axis = a;
+                }
+            }
+            let half = node.count as usize / 2;
+            items[range].select_nth_unstable_by(half, |(ci, i), (cj, j)| {
+                ci[axis].total_cmp(&cj[axis]).then(i.cmp(j))
+            });
+            let child = nodes.len();
+            nodes.push(Node {
+                start: node.start,
+                count: half as u32,
+                child: LEAF,
+            });
+            nodes.push(Node {
+                start: node.start + half as u32,
+                count: node.count - half as u32,
+                child: LEAF,
+            });
+            nodes[k].child = child as u32;
+            stack.push(child + 1);
+            stack.push(child);
+        }
+        let mut bvh = Bvh {
+            bounds: vec![Dop26::empty(); nodes.len()],
+            nodes,
+            leaf_bounds: Vec::new(),
+            order: items.into_iter().map(|(_, i)| i).collect(),
+        };
+        bvh.refit_in_place(leaves);
+        bvh
+    }
+}

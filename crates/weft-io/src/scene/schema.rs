@@ -1,0 +1,392 @@
+//! The scene file schema (TOML, version 1). Every table rejects unknown keys.
+//! Units are SI (m, kg, s, Pa, rad). `docs/scenes.md` documents each key.
+
+use serde::Deserialize;
+
+/// Current schema version.
+pub const SCENE_VERSION: u32 = 1;
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    /// Schema version; must be 1.
+    pub version: u32,
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Approximate number of cloth vertices; generators scale their resolution
+    /// to reach it (0 = the generators' own resolution).
+    #[serde(default)]
+    pub size: u64,
+    /// Gravity (m/s²).
+    #[serde(default = "default_gravity")]
+    pub gravity: [f64; 3],
+    #[serde(default)]
+    pub time: TimeSection,
+    #[serde(default)]
+    pub contact: ContactSection,
+    #[serde(default)]
+    pub output: OutputSection,
+    #[serde(default)]
+    pub cloth: Vec<ClothSection>,
+    #[serde(default)]
+    pub obstacle: Vec<ObstacleSection>,
+    #[serde(default)]
+    pub pin: Vec<PinSection>,
+    /// Partitions of the internal forces (results never depend on it).
+    #[serde(default = "default_partitions")]
+    pub partitions: usize,
+}
+
+fn default_gravity() -> [f64; 3] {
+    [0.0, -9.81, 0.0]
+}
+
+fn default_partitions() -> usize {
+    1
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimeSection {
+    /// End time (s).
+    #[serde(default = "default_end")]
+    pub end: f64,
+    /// Internal step (s); absent = derived from the assembled rest system.
+    #[serde(default)]
+    pub internal_step: Option<f64>,
+    /// Safety factor of the derived step, in (0, 0.5].
+    #[serde(default = "default_beta")]
+    pub beta: f64,
+    /// Internal steps per collision window.
+    #[serde(default = "default_steps_per_window")]
+    pub steps_per_window: u64,
+}
+
+fn default_end() -> f64 {
+    1.0
+}
+fn default_beta() -> f64 {
+    0.3
+}
+fn default_steps_per_window() -> u64 {
+    100
+}
+
+impl Default for TimeSection {
+    fn default() -> Self {
+        Self {
+            end: default_end(),
+            internal_step: None,
+            beta: default_beta(),
+            steps_per_window: default_steps_per_window(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ContactSection {
+    /// Outer contact thickness eta_1 (m).
+    #[serde(default = "default_thickness")]
+    pub thickness: f64,
+    /// Separation floor as a fraction of eta_1.
+    #[serde(default = "default_floor")]
+    pub floor: f64,
+    /// Layer-1 stiffness (N/m); absent = automatic.
+    #[serde(default)]
+    pub stiffness: Option<f64>,
+    /// Layers activated per detection.
+    #[serde(default = "default_layers")]
+    pub layers_per_detection: u32,
+    /// Coulomb friction coefficient.
+    #[serde(default)]
+    pub friction: f64,
+    /// Calm windows before a layer is retired.
+    #[serde(default = "default_retire")]
+    pub retire_after_windows: u32,
+    /// Rollback cap per window.
+    #[serde(default = "default_max_rollbacks")]
+    pub max_rollbacks: u32,
+}
+
+fn default_thickness() -> f64 {
+    1e-3
+}
+fn default_floor() -> f64 {
+    0.1
+}
+fn default_layers() -> u32 {
+    5
+}
+fn default_retire() -> u32 {
+    3
+}
+fn default_max_rollbacks() -> u32 {
+    1000
+}
+
+impl Default for ContactSection {
+    fn default() -> Self {
+        Self {
+            thickness: default_thickness(),
+            floor: default_floor(),
+            stiffness: None,
+            layers_per_detection: default_layers(),
+            friction: 0.0,
+            retire_after_windows: default_retire(),
+            max_rollbacks: default_max_rollbacks(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSection {
+    /// Frames per second of output.
+    #[serde(default = "default_frame_rate")]
+    pub frame_rate: f64,
+    /// Frame format: "ply" or "obj".
+    #[serde(default = "default_format")]
+    pub format: String,
+}
+
+fn default_frame_rate() -> f64 {
+    30.0
+}
+fn default_format() -> String {
+    "ply".into()
+}
+
+impl Default for OutputSection {
+    fn default() -> Self {
+        Self {
+            frame_rate: default_frame_rate(),
+            format: default_format(),
+        }
+    }
+}
+
+/// A cloth object: a mesh file or a generator, and a material.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClothSection {
+    pub name: String,
+    /// Mesh file (OBJ or PLY), relative to the scene file.
+    #[serde(default)]
+    pub mesh: Option<String>,
+    /// Generator, when no mesh file is given.
+    #[serde(default)]
+    pub grid: Option<GridSection>,
+    #[serde(default)]
+    pub transform: Transform,
+    /// Initial velocity of every vertex (m/s).
+    #[serde(default)]
+    pub velocity: [f64; 3],
+    /// Initial angular velocity (rad/s) about `spin_center`.
+    #[serde(default)]
+    pub spin: [f64; 3],
+    #[serde(default)]
+    pub spin_center: [f64; 3],
+    /// Rest shape: "initial" (the start shape) or "flat" (generators only:
+    /// the grid before `wave` and transform).
+    #[serde(default = "default_rest")]
+    pub rest: String,
+    #[serde(default)]
+    pub material: MaterialSection,
+}
+
+fn default_rest() -> String {
+    "initial".into()
+}
+
+/// A rectangle-grid generator.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridSection {
+    /// Side lengths (m).
+    pub size: [f64; 2],
+    /// Vertices along each side (scaled by the scene's `size`, if set).
+    pub resolution: [usize; 2],
+    /// Center (m).
+    #[serde(default)]
+    pub center: [f64; 3],
+    /// Plane: "xz" (horizontal, default), "xy" or "yz".
+    #[serde(default = "default_plane")]
+    pub plane: String,
+    /// Out-of-plane sinusoidal perturbation amplitude (m) of the start shape.
+    #[serde(default)]
+    pub wave: f64,
+    /// Number of half-waves of the perturbation along each side.
+    #[serde(default = "default_wave_count")]
+    pub wave_count: [f64; 2],
+}
+
+fn default_plane() -> String {
+    "xz".into()
+}
+fn default_wave_count() -> [f64; 2] {
+    [1.0, 1.0]
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSection {
+    /// Area density (kg/m²).
+    #[serde(default = "default_density")]
+    pub density: f64,
+    /// Young's modulus (Pa).
+    #[serde(default = "default_youngs")]
+    pub youngs_modulus: f64,
+    #[serde(default = "default_poisson")]
+    pub poisson_ratio: f64,
+    /// Thickness (m).
+    #[serde(default = "default_cloth_thickness")]
+    pub thickness: f64,
+    /// Bending stiffness k_b (J); absent = D/6.
+    #[serde(default)]
+    pub bending_stiffness: Option<f64>,
+    /// Viscous strain-rate damping (s).
+    #[serde(default)]
+    pub stretch_damping: f64,
+    /// Hinge-rate damping (J·s).
+    #[serde(default)]
+    pub bend_damping: f64,
+}
+
+fn default_density() -> f64 {
+    0.2
+}
+fn default_youngs() -> f64 {
+    1e5
+}
+fn default_poisson() -> f64 {
+    0.3
+}
+fn default_cloth_thickness() -> f64 {
+    1e-3
+}
+
+impl Default for MaterialSection {
+    fn default() -> Self {
+        Self {
+            density: default_density(),
+            youngs_modulus: default_youngs(),
+            poisson_ratio: default_poisson(),
+            thickness: default_cloth_thickness(),
+            bending_stiffness: None,
+            stretch_damping: 0.0,
+            bend_damping: 0.0,
+        }
+    }
+}
+
+/// A kinematic obstacle.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObstacleSection {
+    pub name: String,
+    #[serde(default)]
+    pub mesh: Option<String>,
+    #[serde(default)]
+    pub sphere: Option<SphereSection>,
+    #[serde(default, rename = "box")]
+    pub cuboid: Option<BoxSection>,
+    #[serde(default)]
+    pub cylinder: Option<CylinderSection>,
+    #[serde(default)]
+    pub transform: Transform,
+    #[serde(default)]
+    pub motion: MotionSection,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SphereSection {
+    pub center: [f64; 3],
+    pub radius: f64,
+    #[serde(default = "default_subdivisions")]
+    pub subdivisions: u32,
+}
+
+fn default_subdivisions() -> u32 {
+    3
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxSection {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CylinderSection {
+    pub from: [f64; 3],
+    pub to: [f64; 3],
+    pub radius: f64,
+    #[serde(default = "default_segments")]
+    pub segments: usize,
+    #[serde(default = "default_rings")]
+    pub rings: usize,
+}
+
+fn default_segments() -> usize {
+    24
+}
+fn default_rings() -> usize {
+    8
+}
+
+/// Scale, then rotate (axis-angle, radians), then translate.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Transform {
+    #[serde(default)]
+    pub scale: Option<f64>,
+    #[serde(default)]
+    pub rotate_axis: Option<[f64; 3]>,
+    #[serde(default)]
+    pub rotate_angle: f64,
+    #[serde(default)]
+    pub translate: [f64; 3],
+}
+
+/// A scripted motion.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotionSection {
+    /// "fixed" (default), "translate" or "rotate".
+    #[serde(default)]
+    pub kind: Option<String>,
+    /// Velocity for "translate" (m/s).
+    #[serde(default)]
+    pub velocity: [f64; 3],
+    /// Rotation axis and a point on it, for "rotate".
+    #[serde(default)]
+    pub axis: [f64; 3],
+    #[serde(default)]
+    pub center: [f64; 3],
+    /// Angular velocity profile: [[t, omega], ...] (s, rad/s), linear in between.
+    #[serde(default)]
+    pub omega: Vec<[f64; 2]>,
+}
+
+/// A set of pinned cloth vertices with a motion.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PinSection {
+    pub name: String,
+    /// Name of the cloth object.
+    pub object: String,
+    /// Vertex indices of the object (0-based).
+    #[serde(default)]
+    pub indices: Vec<u32>,
+    /// Or every vertex inside this axis-aligned box (start positions).
+    #[serde(default)]
+    pub box_min: Option<[f64; 3]>,
+    #[serde(default)]
+    pub box_max: Option<[f64; 3]>,
+    #[serde(default)]
+    pub motion: MotionSection,
+}

@@ -1,0 +1,47 @@
+//! Diagnostics of committed windows.
+
+use serde::{Deserialize, Serialize};
+
+/// What happened in one committed window (one line of the stats file).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct WindowStats {
+    /// Index of the window (0-based).
+    pub window: u64,
+    /// Simulated time at the window's end (s).
+    pub time: f64,
+    /// Tick at the window's end.
+    pub tick: u64,
+    /// Internal-clock batches run in the committed pass.
+    pub internal_events: u64,
+    /// Internal stencil evaluations in the committed pass.
+    pub internal_stencil_evaluations: u64,
+    /// Penalty-layer stencil evaluations (one per stencil per layer tick).
+    pub layer_events: u64,
+    /// Penalty evaluations that kicked (stencil inside its layer).
+    pub layer_kicks: u64,
+    /// Rollbacks of this window.
+    pub rollbacks: u32,
+    /// Active stencils at commit (after retirement) and their depth histogram
+    /// (`depth_histogram[i]` = stencils of depth `i + 1`).
+    pub active_stencils: u64,
+    pub depth_histogram: Vec<u64>,
+    pub max_depth: u32,
+    /// Candidate stencils of the committed pass's broad phase.
+    pub candidates: u64,
+    /// Stencils the narrow phase reported, summed over all passes.
+    pub confirmed: u64,
+    /// Layers retired at commit.
+    pub retired_layers: u64,
+    /// Trajectory breakpoints of the committed pass.
+    pub breakpoints: u64,
+    /// Smallest stencil distance seen at layer events and at the window end (m);
+    /// `null` when no stencil was near.
+    pub min_separation: Option<f64>,
+    pub kinetic_energy: f64,
+    /// Elastic + gravity + penalty energy at the window end (J).
+    pub potential_energy: f64,
+    pub linear_momentum: [f64; 3],
+    pub angular_momentum: [f64; 3],
+    /// Wall-clock seconds spent on the window (all passes).
+    pub wall_seconds: f64,
+}

@@ -1,0 +1,596 @@
+//! The speculative ACM loop (`acm-spec.md` §4): per window, run every event in
+//! time order, detect, and either commit or roll back with more layers.
+//!
+//! ```text
+//! snapshot (x, v, tau)                      -- not the active layers
+//! loop:
+//!     events in [T0, T1), batched per tick; record trajectory breakpoints
+//!     drift every vertex to T1
+//!     broad phase → candidate stencils → narrow phase: d ≤ eta_(depth+1) ever?
+//!     none: commit, retire calm innermost layers, diagnostics; done
+//!     else: restore the snapshot, activate depth+1 ..= depth+L of each reported
+//!           stencil (the layer set only grows within a window), run again
+//! ```
+//!
+//! A batch at tick `t` holds every clock that fires at `t`: the internal clock
+//! (stretch, bend, damping, gravity, scripts) and each active layer `l` with
+//! `t % h_l == 0`. All forces read positions at `t` and the velocities at the
+//! start of the batch (Jacobi semantics for damping and friction); each vertex
+//! sums its impulses in (clock, stencil key) order; only vertices whose velocity
+//! changes are drifted to `t` and get a breakpoint, so zero kicks leave no trace.
+
+use std::time::Instant;
+
+use glam::DVec3;
+use weft_core::{StencilKey, StencilKind};
+use weft_geom::ccd::{proximity, CcdStats};
+use weft_geom::distance::{stencil_closest, Closest};
+
+use crate::broad::BroadPhase;
+use crate::clock::{next_multiple_after, Tick};
+use crate::diagnostics::WindowStats;
+use crate::error::SimError;
+use crate::executor::{Executor, Serial};
+use crate::layers::penalty_kick;
+use crate::trajectory::Trajectories;
+use crate::world::World;
+
+/// Placeholder of the closest-point cache (never read: its stamp is 0).
+const NO_CLOSEST: Closest = Closest {
+    d: f64::INFINITY,
+    n: DVec3::Z,
+    coeff: [0.0; 4],
+};
+
+/// The state restored on rollback.
+#[derive(Clone, Debug)]
+struct Snapshot {
+    x: Vec<DVec3>,
+    v: Vec<DVec3>,
+    tau: Vec<Tick>,
+}
+
+/// Counters of one pass over a window.
+#[derive(Clone, Copy, Debug, Default)]
+struct PassCounts {
+    internal_events: u64,
+    layer_events: u64,
+    layer_kicks: u64,
+    min_separation: f64,
+}
+
+/// Scratch memory reused across windows.
+#[derive(Debug, Default)]
+struct Workspace {
+    xt: Vec<DVec3>,
+    out: Vec<DVec3>,
+    acc: Vec<DVec3>,
+    touched: Vec<u32>,
+    is_touched: Vec<bool>,
+    /// Per active stencil: (tick + 1 of the batch it was computed in, data).
+    closest: Vec<(Tick, Closest)>,
+    bounds: Vec<usize>,
+    broad: BroadPhase,
+}
+
+/// Totals over a run.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RunTotals {
+    pub windows: u64,
+    pub rollbacks: u64,
+    pub narrow_queries: u64,
+    pub max_depth: u32,
+    pub max_active_stencils: u64,
+}
+
+/// The ACM engine over a [`World`], running its stages on an [`Executor`].
+pub struct Engine<E: Executor = Serial> {
+    pub world: World,
+    exec: E,
+    traj: Trajectories,
+    ws: Workspace,
+    pub totals: RunTotals,
+    pub ccd: CcdStats,
+}
+
+impl<E: Executor> Engine<E> {
+    /// Wraps `world`, refusing an initial state in which a stencil is within
+    /// the floor `eta_inf` or two triangles intersect.
+    pub fn new(world: World, exec: E) -> Result<Self, SimError> {
+        let n = world.num_vertices();
+        let traj = Trajectories::new(n, world.limits.trajectory_budget_bytes);
+        let mut engine = Self {
+            ws: Workspace {
+                xt: vec![DVec3::ZERO; n],
+                out: vec![DVec3::ZERO; world.internal.num_slots()],
+                acc: vec![DVec3::ZERO; n],
+                is_touched: vec![false; n],
+                bounds: world.internal.slot_bounds(),
+                ..Default::default()
+            },
+            world,
+            exec,
+            traj,
+            totals: RunTotals::default(),
+            ccd: CcdStats::default(),
+        };
+        engine.check_initial_state()?;
+        Ok(engine)
+    }
+
+    /// The executor.
+    pub fn executor(&self) -> &E {
+        &self.exec
+    }
+
+    fn check_initial_state(&mut self) -> Result<(), SimError> {
+        let w = &self.world;
+        self.traj.begin(w.tick, &w.x);
+        let keys = self.ws.broad.candidates(
+            &w.triangles,
+            &w.inv_mass,
+            &self.traj,
+            0.5 * w.schedule.eta_1,
+        );
+        for key in keys {
+            let x = key.v.map(|i| w.x[i as usize]);
+            let c = stencil_closest(key.kind, &x);
+            if !(c.d > w.schedule.eta_inf) {
+                return Err(SimError::InitialContact {
+                    kind: kind_name(key.kind),
+                    key,
+                    places: self.places(&key),
+                    distance: c.d,
+                    floor: w.schedule.eta_inf,
+                });
+            }
+        }
+        let hits = weft_geom::intersections::mesh_self_intersections(&w.x, &w.triangles);
+        let dynamic = |f: u32| {
+            w.triangles[f as usize]
+                .iter()
+                .any(|&i| w.inv_mass[i as usize] > 0.0)
+        };
+        if let Some(&(a, b)) = hits.iter().find(|&&(a, b)| dynamic(a) || dynamic(b)) {
+            return Err(SimError::InitialIntersection {
+                a: w.triangle_place(a),
+                b: w.triangle_place(b),
+            });
+        }
+        Ok(())
+    }
+
+    fn places(&self, key: &StencilKey) -> String {
+        key.v
+            .iter()
+            .map(|&i| self.world.place(i).to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+
+    /// Position of vertex `i` at tick `t` (drift without writing).
+    #[inline]
+    fn pos_at(world: &World, i: usize, t: Tick) -> DVec3 {
+        world.x[i] + world.v[i] * ((t - world.tau[i]) as f64 * world.lattice.quantum)
+    }
+
+    /// Runs one window to commit (with as many rollbacks as it needs).
+    pub fn step_window(&mut self) -> Result<WindowStats, SimError> {
+        let started = Instant::now();
+        let t0 = self.world.tick;
+        let t1 = t0 + self.world.lattice.window();
+        let snap = Snapshot {
+            x: self.world.x.clone(),
+            v: self.world.v.clone(),
+            tau: self.world.tau.clone(),
+        };
+        let mut rollbacks = 0u32;
+        let mut confirmed = 0u64;
+        loop {
+            let counts = self.run_events(t0, t1)?;
+            let candidates = {
+                let w = &self.world;
+                self.ws.broad.candidates(
+                    &w.triangles,
+                    &w.inv_mass,
+                    &self.traj,
+                    0.5 * w.schedule.eta_1,
+                )
+            };
+            let reported = self.narrow_phase(&candidates);
+            if reported.is_empty() {
+                let retired = self.commit(&candidates);
+                self.world.tick = t1;
+                let stats = self.window_stats(
+                    counts,
+                    rollbacks,
+                    candidates.len() as u64,
+                    confirmed,
+                    retired,
+                    &candidates,
+                    started,
+                );
+                self.world.window_index += 1;
+                self.totals.windows += 1;
+                self.totals.rollbacks += rollbacks as u64;
+                self.totals.max_depth = self.totals.max_depth.max(stats.max_depth);
+                self.totals.max_active_stencils =
+                    self.totals.max_active_stencils.max(stats.active_stencils);
+                return Ok(stats);
+            }
+            confirmed += reported.len() as u64;
+            // Roll back: restore the state, keep (and extend) the layers.
+            self.world.x.copy_from_slice(&snap.x);
+            self.world.v.copy_from_slice(&snap.v);
+            self.world.tau.copy_from_slice(&snap.tau);
+            let extra = self.world.contact.layers_per_detection;
+            for key in &reported {
+                self.world.layers.deepen(*key, extra);
+            }
+            rollbacks += 1;
+            if rollbacks > self.world.contact.max_rollbacks {
+                let key = reported[reported.len() - 1];
+                let p = self.world.x[key.v[0] as usize];
+                return Err(SimError::RollbackCap {
+                    time: self.world.lattice.seconds(t0),
+                    cap: self.world.contact.max_rollbacks,
+                    kind: kind_name(key.kind),
+                    key,
+                    places: self.places(&key),
+                    position: p.to_array(),
+                    depth: self.world.layers.depth(&key),
+                });
+            }
+        }
+    }
+
+    /// Runs every event in `[t0, t1)` and drifts all vertices to `t1`,
+    /// recording trajectories.
+    fn run_events(&mut self, t0: Tick, t1: Tick) -> Result<PassCounts, SimError> {
+        let mut counts = PassCounts {
+            min_separation: f64::INFINITY,
+            ..Default::default()
+        };
+        self.traj.begin(t0, &self.world.x);
+        let active: Vec<(StencilKey, u32)> = self
+            .world
+            .layers
+            .stencils
+            .iter()
+            .map(|(k, s)| (*k, s.depth))
+            .collect();
+        let max_depth = active.iter().map(|a| a.1).max().unwrap_or(0);
+        // Clock periods: [internal, layer 1, ..., layer max_depth].
+        let mut periods = vec![self.world.lattice.internal_step()];
+        periods.extend((1..=max_depth).map(|l| self.world.schedule.step(l)));
+        let first_at_or_after = |p: Tick| {
+            if t0 > 0 && t0 % p == 0 {
+                t0
+            } else {
+                next_multiple_after(t0, p)
+            }
+        };
+        let mut next: Vec<Tick> = periods.iter().map(|&p| first_at_or_after(p)).collect();
+        let mut firing: Vec<u32> = Vec::new();
+        // by_layer[l - 1]: indices of the stencils with depth ≥ l, in key order.
+        let mut by_layer: Vec<Vec<u32>> = vec![Vec::new(); max_depth as usize];
+        for (a, &(_, depth)) in active.iter().enumerate() {
+            for list in &mut by_layer[..depth as usize] {
+                list.push(a as u32);
+            }
+        }
+        self.ws.closest.clear();
+        self.ws
+            .closest
+            .resize(active.len(), (0, NO_CLOSEST));
+        loop {
+            let t = next.iter().copied().min().unwrap_or(t1);
+            if t >= t1 {
+                break;
+            }
+            firing.clear();
+            for (c, nt) in next.iter_mut().enumerate() {
+                if *nt == t {
+                    firing.push(c as u32);
+                    *nt += periods[c];
+                }
+            }
+            self.batch(t, &firing, &active, &by_layer, &mut counts)?;
+        }
+        // Drift everything to the window end.
+        let w = &mut self.world;
+        for i in 0..w.x.len() {
+            let p = Self::pos_at(w, i, t1);
+            w.x[i] = p;
+            w.tau[i] = t1;
+            self.traj
+                .record(i, t1, p)
+                .map_err(|e| budget_error(w, t0, e))?;
+        }
+        Ok(counts)
+    }
+
+    /// One batch: every clock in `firing` (0 = internal, l = layer l) at tick `t`.
+    fn batch(
+        &mut self,
+        t: Tick,
+        firing: &[u32],
+        active: &[(StencilKey, u32)],
+        by_layer: &[Vec<u32>],
+        counts: &mut PassCounts,
+    ) -> Result<(), SimError> {
+        let internal = firing.first() == Some(&0);
+        let w = &self.world;
+        let ws = &mut self.ws;
+        let n = w.x.len();
+        if internal {
+            counts.internal_events += 1;
+            for i in 0..n {
+                ws.xt[i] = Self::pos_at(w, i, t);
+            }
+            w.internal
+                .evaluate(&self.exec, &ws.bounds, &ws.xt, &w.v, &mut ws.out);
+            let h = w.lattice.h_el();
+            for i in 0..n {
+                if w.inv_mass[i] > 0.0 {
+                    let g = w.internal.fold(i, &ws.out) - w.gravity * w.mass[i];
+                    ws.acc[i] = g * -h;
+                }
+                ws.is_touched[i] = true;
+            }
+        }
+        // Penalty layers, in (layer, key) order. The closest-point data of a
+        // stencil is computed once per batch (positions are those at `t` for
+        // every layer) and cached with the batch's tick as stamp.
+        let layer_clocks = if internal { &firing[1..] } else { firing };
+        let mu = w.contact.friction;
+        for &l in layer_clocks {
+            let h_l = w.lattice.seconds(w.schedule.step(l));
+            for &a in &by_layer[l as usize - 1] {
+                let key = &active[a as usize].0;
+                counts.layer_events += 1;
+                let cached = &mut ws.closest[a as usize];
+                let c = if cached.0 == t + 1 {
+                    cached.1
+                } else {
+                    let x = key.v.map(|i| {
+                        if internal {
+                            ws.xt[i as usize]
+                        } else {
+                            Self::pos_at(w, i as usize, t)
+                        }
+                    });
+                    let c = stencil_closest(key.kind, &x);
+                    counts.min_separation = counts.min_separation.min(c.d);
+                    *cached = (t + 1, c);
+                    c
+                };
+                let v = key.v.map(|i| w.v[i as usize]);
+                let inv = key.v.map(|i| w.inv_mass[i as usize]);
+                if let Some(k) = penalty_kick(&w.schedule, l, h_l, &c, &v, &inv, mu) {
+                    counts.layer_kicks += 1;
+                    for j in 0..4 {
+                        let i = key.v[j] as usize;
+                        if inv[j] > 0.0 {
+                            ws.acc[i] += k.impulse[j];
+                            if !ws.is_touched[i] {
+                                ws.is_touched[i] = true;
+                                ws.touched.push(i as u32);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // Apply: new velocities; drift and record only where v changed.
+        let h = w.lattice.h_el();
+        let tsec = w.lattice.seconds(t);
+        let world = &mut self.world;
+        let window_start = self.traj.start();
+        let mut apply = |i: usize, xt: Option<DVec3>| -> Result<(), SimError> {
+            let v_old = world.v[i];
+            let v_new = if let Some((s, k)) = world.script_of[i] {
+                if internal {
+                    let x = xt.unwrap_or_else(|| Self::pos_at(world, i, t));
+                    world.scripts[s as usize].chord_velocity(k as usize, x, tsec, h)
+                } else {
+                    v_old
+                }
+            } else {
+                v_old + ws.acc[i] * world.inv_mass[i]
+            };
+            ws.acc[i] = DVec3::ZERO;
+            ws.is_touched[i] = false;
+            if v_new != v_old {
+                let x = xt.unwrap_or_else(|| Self::pos_at(world, i, t));
+                if !(x.is_finite() && v_new.is_finite()) {
+                    return Err(SimError::NonFinite {
+                        place: world.place(i as u32),
+                        time: world.lattice.seconds(t),
+                    });
+                }
+                world.x[i] = x;
+                world.tau[i] = t;
+                world.v[i] = v_new;
+                self.traj
+                    .record(i, t, x)
+                    .map_err(|e| budget_error(world, window_start, e))?;
+            }
+            Ok(())
+        };
+        if internal {
+            for i in 0..n {
+                apply(i, Some(ws.xt[i]))?;
+            }
+            ws.touched.clear();
+        } else {
+            let touched = std::mem::take(&mut ws.touched);
+            for &i in &touched {
+                apply(i as usize, None)?;
+            }
+            ws.touched = touched;
+            ws.touched.clear();
+        }
+        Ok(())
+    }
+
+    /// Stencils among `candidates` that may come within `eta_(depth+1)`.
+    fn narrow_phase(&mut self, candidates: &[StencilKey]) -> Vec<StencilKey> {
+        let w = &self.world;
+        let mut reported = Vec::new();
+        for key in candidates {
+            let depth = w.layers.depth(key);
+            let eta = w.schedule.eta(depth + 1);
+            let traj = key.v.map(|i| self.traj.of(i as usize));
+            self.totals.narrow_queries += 1;
+            if proximity(key.kind, &traj, eta, &mut self.ccd) {
+                reported.push(*key);
+            }
+        }
+        reported
+    }
+
+    /// Retires calm innermost layers; returns how many were retired.
+    ///
+    /// A stencil is calm in a window when it is certified to stay farther than
+    /// `eta_depth` over the whole window, T1 included (by the narrow phase, or
+    /// because its DOPs are apart: farther than `eta_1`). After
+    /// `retire_after_windows` calm windows in a row its innermost layer is
+    /// retired, then the next innermost as long as it is certified too — the
+    /// active set stays a prefix `1..=depth` — and the counter restarts.
+    fn commit(&mut self, candidates: &[StencilKey]) -> u64 {
+        let w = &mut self.world;
+        let hysteresis = w.contact.retire_after_windows;
+        let mut retired = 0;
+        let keys: Vec<StencilKey> = w.layers.stencils.keys().copied().collect();
+        for key in keys {
+            let near = candidates.binary_search(&key).is_ok();
+            let traj = key.v.map(|i| self.traj.of(i as usize));
+            let certified_outside = |eta: f64, ccd: &mut CcdStats| {
+                !near || !proximity(key.kind, &traj, eta, ccd)
+            };
+            let s = w.layers.stencils.get_mut(&key).expect("active stencil");
+            if !certified_outside(w.schedule.eta(s.depth), &mut self.ccd) {
+                s.calm_windows = 0;
+                continue;
+            }
+            s.calm_windows += 1;
+            if s.calm_windows < hysteresis {
+                continue;
+            }
+            s.calm_windows = 0;
+            s.depth -= 1;
+            retired += 1;
+            while s.depth > 0 && certified_outside(w.schedule.eta(s.depth), &mut self.ccd) {
+                s.depth -= 1;
+                retired += 1;
+            }
+            if s.depth == 0 {
+                w.layers.stencils.remove(&key);
+            }
+        }
+        retired
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn window_stats(
+        &self,
+        counts: PassCounts,
+        rollbacks: u32,
+        candidates: u64,
+        confirmed: u64,
+        retired: u64,
+        candidate_keys: &[StencilKey],
+        started: Instant,
+    ) -> WindowStats {
+        let w = &self.world;
+        let mut min_sep = counts.min_separation;
+        for key in candidate_keys {
+            let x = key.v.map(|i| w.x[i as usize]);
+            min_sep = min_sep.min(stencil_closest(key.kind, &x).d);
+        }
+        let e = self.energies();
+        let (lin, ang) = self.momenta();
+        let hist = w.layers.depth_histogram();
+        WindowStats {
+            window: w.window_index,
+            time: w.time(),
+            tick: w.tick,
+            internal_events: counts.internal_events,
+            internal_stencil_evaluations: counts.internal_events
+                * w.internal.num_stencils() as u64,
+            layer_events: counts.layer_events,
+            layer_kicks: counts.layer_kicks,
+            rollbacks,
+            active_stencils: w.layers.stencils.len() as u64,
+            max_depth: hist.len() as u32,
+            depth_histogram: hist,
+            candidates,
+            confirmed,
+            retired_layers: retired,
+            breakpoints: self.traj.breakpoints() as u64,
+            min_separation: min_sep.is_finite().then_some(min_sep),
+            kinetic_energy: e.0,
+            potential_energy: e.1,
+            linear_momentum: lin.to_array(),
+            angular_momentum: ang.to_array(),
+            wall_seconds: started.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// (kinetic, potential) energy at the current (synchronized) state.
+    pub fn energies(&self) -> (f64, f64) {
+        let w = &self.world;
+        let mut kin = 0.0;
+        let mut grav = 0.0;
+        for i in 0..w.x.len() {
+            if w.inv_mass[i] > 0.0 {
+                kin += 0.5 * w.mass[i] * w.v[i].length_squared();
+                grav -= w.mass[i] * w.gravity.dot(w.x[i]);
+            }
+        }
+        let elastic = w.internal.energy(&w.x);
+        let mut penalty = 0.0;
+        for (key, s) in &w.layers.stencils {
+            let x = key.v.map(|i| w.x[i as usize]);
+            let d = stencil_closest(key.kind, &x).d;
+            penalty += w.schedule.energy_through(s.depth, d);
+        }
+        (kin, elastic + grav + penalty)
+    }
+
+    /// Linear and angular momentum (about the origin) of the dynamic vertices.
+    pub fn momenta(&self) -> (DVec3, DVec3) {
+        let w = &self.world;
+        let mut lin = DVec3::ZERO;
+        let mut ang = DVec3::ZERO;
+        for i in 0..w.x.len() {
+            if w.inv_mass[i] > 0.0 {
+                let p = w.v[i] * w.mass[i];
+                lin += p;
+                ang += w.x[i].cross(p);
+            }
+        }
+        (lin, ang)
+    }
+
+    /// Hash of the state: see [`crate::hash::state_hash`].
+    pub fn state_hash(&self) -> String {
+        crate::hash::state_hash(&self.world)
+    }
+}
+
+fn budget_error(w: &World, t0: Tick, e: crate::trajectory::BudgetExceeded) -> SimError {
+    SimError::TrajectoryBudget {
+        time: w.lattice.seconds(t0),
+        breakpoints: e.breakpoints,
+        budget_bytes: e.budget_bytes,
+    }
+}
+
+fn kind_name(k: StencilKind) -> &'static str {
+    match k {
+        StencilKind::VertexFace => "vertex-face",
+        StencilKind::EdgeEdge => "edge-edge",
+    }
+}

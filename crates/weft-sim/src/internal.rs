@@ -1,0 +1,291 @@
+//! Internal forces: stretch, bend and damping stencils split into partitions,
+//! evaluated per partition and summed per vertex by an ordered fold.
+//!
+//! Storage is partition-major (each partition's elements, and their output
+//! slots, are contiguous) while the per-vertex fold visits contributions in
+//! **global key order** — stretch elements by triangle input id, then hinges by
+//! edge — so the sum's bits do not depend on the partitioning.
+
+use std::ops::Range;
+
+use glam::DVec3;
+use weft_core::{Topology, NONE};
+
+use crate::executor::Executor;
+use crate::materials::{self, HingeElement, Material, MaterialError, StretchElement};
+
+/// One partition's share of the internal stencils.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Partition {
+    pub stretch: Range<usize>,
+    pub hinges: Range<usize>,
+    /// Its output slots (3 per stretch element, then 4 per hinge).
+    pub slots: Range<usize>,
+}
+
+/// All internal stencils of the world.
+#[derive(Clone, Debug)]
+pub struct InternalForces {
+    pub stretch: Vec<StretchElement>,
+    pub stretch_material: Vec<u16>,
+    pub hinges: Vec<HingeElement>,
+    pub hinge_material: Vec<u16>,
+    pub materials: Vec<Material>,
+    pub partitions: Vec<Partition>,
+    /// Per-vertex CSR of output slots in global key order.
+    incidence_offsets: Vec<u32>,
+    incidence: Vec<u32>,
+    damped: bool,
+}
+
+impl InternalForces {
+    /// Builds the stencils of cloth triangles (`tri_material[f] = Some(m)`) and
+    /// of interior edges between two cloth triangles; `partitions` contiguous
+    /// chunks of cloth triangles in input order.
+    pub fn build(
+        triangles: &[[u32; 3]],
+        tri_material: &[Option<u16>],
+        topology: &Topology,
+        rest: &[DVec3],
+        materials_list: &[Material],
+        inv_mass: &[f64],
+        partitions: usize,
+    ) -> Result<Self, (u32, MaterialError)> {
+        let cloth: Vec<u32> = (0..triangles.len() as u32)
+            .filter(|&f| tri_material[f as usize].is_some())
+            .collect();
+        let n_parts = partitions.clamp(1, cloth.len().max(1));
+        let mut part_of_tri = vec![NONE; triangles.len()];
+        for (k, &f) in cloth.iter().enumerate() {
+            part_of_tri[f as usize] = (k * n_parts / cloth.len()) as u32;
+        }
+        // (partition, global key) of every element.
+        let mut stretch_keys: Vec<(u32, u32)> = cloth
+            .iter()
+            .map(|&f| (part_of_tri[f as usize], f))
+            .collect();
+        stretch_keys.sort_unstable();
+        let mut hinge_keys: Vec<(u32, u32)> = Vec::new();
+        for (e, &[fa, fb]) in topology.edge_faces.iter().enumerate() {
+            if fb != NONE
+                && tri_material[fa as usize].is_some()
+                && tri_material[fb as usize].is_some()
+            {
+                hinge_keys.push((part_of_tri[fa as usize], e as u32));
+            }
+        }
+        hinge_keys.sort_unstable();
+        let hinge_of_edge = {
+            let mut m = vec![NONE; topology.edges.len()];
+            for (h, hinge) in topology.hinges.iter().enumerate() {
+                if let Some(e) = topology.edge_index(hinge.edge[0], hinge.edge[1]) {
+                    m[e as usize] = h as u32;
+                }
+            }
+            m
+        };
+
+        let mut stretch = Vec::with_capacity(stretch_keys.len());
+        let mut stretch_material = Vec::with_capacity(stretch_keys.len());
+        for &(_, f) in &stretch_keys {
+            let t = triangles[f as usize];
+            let r = [rest[t[0] as usize], rest[t[1] as usize], rest[t[2] as usize]];
+            stretch.push(StretchElement::new(t, r).map_err(|e| (f, e))?);
+            stretch_material.push(tri_material[f as usize].unwrap_or(0));
+        }
+        let mut hinges = Vec::with_capacity(hinge_keys.len());
+        let mut hinge_material = Vec::with_capacity(hinge_keys.len());
+        for &(_, e) in &hinge_keys {
+            let h = topology.hinges[hinge_of_edge[e as usize] as usize];
+            let verts = [h.edge[0], h.edge[1], h.wings[0], h.wings[1]];
+            let r = verts.map(|i| rest[i as usize]);
+            hinges.push(HingeElement::new(verts, r).map_err(|err| (h.faces[0], err))?);
+            hinge_material.push(tri_material[h.faces[0] as usize].unwrap_or(0));
+        }
+
+        // Partition ranges and output slots.
+        let mut parts = Vec::with_capacity(n_parts);
+        let (mut s0, mut h0, mut slot) = (0usize, 0usize, 0usize);
+        for p in 0..n_parts as u32 {
+            let s1 = s0 + stretch_keys[s0..].iter().take_while(|k| k.0 == p).count();
+            let h1 = h0 + hinge_keys[h0..].iter().take_while(|k| k.0 == p).count();
+            let slots = slot..slot + 3 * (s1 - s0) + 4 * (h1 - h0);
+            slot = slots.end;
+            parts.push(Partition {
+                stretch: s0..s1,
+                hinges: h0..h1,
+                slots,
+            });
+            (s0, h0) = (s1, h1);
+        }
+
+        // Incidence in global key order: (vertex, class, key, corner) -> slot.
+        let mut inc: Vec<(u32, u32, u32, u32, u32)> = Vec::new();
+        for part in &parts {
+            let mut slot = part.slots.start as u32;
+            for s in part.stretch.clone() {
+                for (j, &vtx) in stretch[s].verts.iter().enumerate() {
+                    if inv_mass[vtx as usize] > 0.0 {
+                        inc.push((vtx, 0, stretch_keys[s].1, j as u32, slot + j as u32));
+                    }
+                }
+                slot += 3;
+            }
+            for h in part.hinges.clone() {
+                for (j, &vtx) in hinges[h].verts.iter().enumerate() {
+                    if inv_mass[vtx as usize] > 0.0 {
+                        inc.push((vtx, 1, hinge_keys[h].1, j as u32, slot + j as u32));
+                    }
+                }
+                slot += 4;
+            }
+        }
+        inc.sort_unstable();
+        let nv = rest.len();
+        let mut incidence_offsets = vec![0u32; nv + 1];
+        for e in &inc {
+            incidence_offsets[e.0 as usize + 1] += 1;
+        }
+        for i in 0..nv {
+            incidence_offsets[i + 1] += incidence_offsets[i];
+        }
+        let incidence = inc.iter().map(|e| e.4).collect();
+        let damped = materials_list
+            .iter()
+            .any(|m| m.stretch_damping > 0.0 || m.bend_damping > 0.0);
+        Ok(Self {
+            stretch,
+            stretch_material,
+            hinges,
+            hinge_material,
+            materials: materials_list.to_vec(),
+            partitions: parts,
+            incidence_offsets,
+            incidence,
+            damped,
+        })
+    }
+
+    /// Number of output slots.
+    pub fn num_slots(&self) -> usize {
+        self.partitions.last().map_or(0, |p| p.slots.end)
+    }
+
+    /// Number of internal stencils (stretch + hinge elements).
+    pub fn num_stencils(&self) -> usize {
+        self.stretch.len() + self.hinges.len()
+    }
+
+    /// Slot bounds of the partitions, for [`Executor::for_each_chunk`].
+    pub fn slot_bounds(&self) -> Vec<usize> {
+        let mut b = vec![0];
+        b.extend(self.partitions.iter().map(|p| p.slots.end));
+        b
+    }
+
+    /// Evaluates every element at positions `x` (and velocities `v` for
+    /// damping, read at the start of the batch): writes `dV/dx - f_damping`
+    /// per element corner into `out` (partition-major slots).
+    pub fn evaluate<E: Executor>(
+        &self,
+        exec: &E,
+        bounds: &[usize],
+        x: &[DVec3],
+        v: &[DVec3],
+        out: &mut [DVec3],
+    ) {
+        exec.for_each_chunk(out, bounds, &|p, chunk: &mut [DVec3]| {
+            let part = &self.partitions[p];
+            let mut k = 0;
+            for s in part.stretch.clone() {
+                let e = &self.stretch[s];
+                let m = &self.materials[self.stretch_material[s] as usize];
+                let xs = e.verts.map(|i| x[i as usize]);
+                let mut g = e.gradient(&xs, m);
+                if self.damped && m.stretch_damping > 0.0 {
+                    let vs = e.verts.map(|i| v[i as usize]);
+                    let f = e.damping_force(&xs, &vs, m);
+                    for j in 0..3 {
+                        g[j] -= f[j];
+                    }
+                }
+                chunk[k..k + 3].copy_from_slice(&g);
+                k += 3;
+            }
+            for h in part.hinges.clone() {
+                let e = &self.hinges[h];
+                let m = &self.materials[self.hinge_material[h] as usize];
+                let xs = e.verts.map(|i| x[i as usize]);
+                let mut g = e.gradient(&xs, m.bending_stiffness);
+                if self.damped && m.bend_damping > 0.0 {
+                    let vs = e.verts.map(|i| v[i as usize]);
+                    let f = e.damping_force(&xs, &vs, m);
+                    for j in 0..4 {
+                        g[j] -= f[j];
+                    }
+                }
+                chunk[k..k + 4].copy_from_slice(&g);
+                k += 4;
+            }
+        });
+    }
+
+    /// The ordered fold of vertex `i`'s contributions (global key order).
+    #[inline]
+    pub fn fold(&self, i: usize, out: &[DVec3]) -> DVec3 {
+        let (a, b) = (
+            self.incidence_offsets[i] as usize,
+            self.incidence_offsets[i + 1] as usize,
+        );
+        let mut sum = DVec3::ZERO;
+        for &s in &self.incidence[a..b] {
+            sum += out[s as usize];
+        }
+        sum
+    }
+
+    /// Elastic energy (stretch + bend) at positions `x`.
+    pub fn energy(&self, x: &[DVec3]) -> f64 {
+        let mut e = 0.0;
+        for (s, el) in self.stretch.iter().enumerate() {
+            let m = &self.materials[self.stretch_material[s] as usize];
+            e += el.energy(&el.verts.map(|i| x[i as usize]), m);
+        }
+        for (h, el) in self.hinges.iter().enumerate() {
+            let m = &self.materials[self.hinge_material[h] as usize];
+            e += el.energy(&el.verts.map(|i| x[i as usize]), m.bending_stiffness);
+        }
+        e
+    }
+
+    /// Largest angular frequency of the assembled rest system.
+    pub fn max_frequency(&self, rest: &[DVec3], mass: &[f64]) -> f64 {
+        materials::max_frequency(
+            rest,
+            mass,
+            &self.stretch,
+            &self.stretch_material,
+            &self.hinges,
+            &self.hinge_material,
+            &self.materials,
+        )
+    }
+
+    /// Rejects damping above its explicit stability limit at step `h`
+    /// (`h γ + h² ω² / 2 ≤ 2` with `γ = λ_max(M⁻¹C)` at the rest shape).
+    pub fn check_damping(&self, h: f64, omega_max: f64, rest: &[DVec3], mass: &[f64]) -> Result<(), MaterialError> {
+        if !self.damped {
+            return Ok(());
+        }
+        let gamma = materials::max_damping_rate(
+            rest,
+            mass,
+            &self.stretch,
+            &self.stretch_material,
+            &self.hinges,
+            &self.hinge_material,
+            &self.materials,
+        );
+        materials::check_damping(h, omega_max, gamma)
+    }
+}

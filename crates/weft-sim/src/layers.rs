@@ -1,0 +1,233 @@
+//! Nested penalty layers: the contact barrier (`acm-spec.md` §3).
+//!
+//! For every stencil with distance `d`, layer `l = 1, 2, ...` has
+//!
+//! ```text
+//! V_l   = k_l (eta_l - d)^2 / 2        if d < eta_l, else 0
+//! eta_l = eta_inf + (eta_1 - eta_inf) l^(-1/4)
+//! k_l   = k_1 l^3
+//! h_l   = h_1 l^(-3/2)   (ticks, rounded down: every layer has the same omega h)
+//! ```
+//!
+//! The sum over layers diverges as `d → eta_inf`, so a finite-energy motion can
+//! only enter finitely many layers. The active-layer set of a stencil is always a
+//! prefix `1..=depth`; it only grows within a window and shrinks at commits, one
+//! innermost layer at a time after `hysteresis` calm windows.
+
+use std::collections::BTreeMap;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use weft_core::StencilKey;
+use weft_geom::distance::Closest;
+
+use crate::clock::Tick;
+
+/// The layer schedule of one simulation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LayerSchedule {
+    /// Outer contact thickness `eta_1` (m).
+    pub eta_1: f64,
+    /// Separation floor `eta_inf` (m), `0 ≤ eta_inf < eta_1`.
+    pub eta_inf: f64,
+    /// Stiffness of layer 1 (N/m).
+    pub k_1: f64,
+    /// Step of layer 1 in ticks.
+    pub h_1: Tick,
+}
+
+impl LayerSchedule {
+    /// `eta_l`.
+    pub fn eta(&self, l: u32) -> f64 {
+        if l == 0 {
+            return f64::INFINITY;
+        }
+        self.eta_inf + (self.eta_1 - self.eta_inf) * libm::pow(l as f64, -0.25)
+    }
+
+    /// `k_l`.
+    pub fn k(&self, l: u32) -> f64 {
+        let l = l as f64;
+        self.k_1 * l * l * l
+    }
+
+    /// `h_l` in ticks (at least 1).
+    pub fn step(&self, l: u32) -> Tick {
+        let h = (self.h_1 as f64 * libm::pow(l as f64, -1.5)).floor();
+        (h as Tick).max(1)
+    }
+
+    /// Energy of layer `l` at distance `d`.
+    pub fn energy(&self, l: u32, d: f64) -> f64 {
+        let gap = self.eta(l) - d;
+        if gap > 0.0 {
+            0.5 * self.k(l) * gap * gap
+        } else {
+            0.0
+        }
+    }
+
+    /// Energy of layers `1..=depth` at distance `d`.
+    pub fn energy_through(&self, depth: u32, d: f64) -> f64 {
+        (1..=depth).map(|l| self.energy(l, d)).sum()
+    }
+}
+
+/// The active layers of one stencil.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LayerState {
+    /// Active layers are `1..=depth`.
+    pub depth: u32,
+    /// Consecutive committed windows in which the stencil stayed certified
+    /// outside `eta_depth` (the retirement hysteresis counter).
+    pub calm_windows: u32,
+}
+
+/// Every stencil's active layers, ordered by global key (the fold order).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ActiveLayers {
+    pub stencils: BTreeMap<StencilKey, LayerState>,
+}
+
+impl ActiveLayers {
+    /// Depth of `key` (0 when inactive).
+    pub fn depth(&self, key: &StencilKey) -> u32 {
+        self.stencils.get(key).map_or(0, |s| s.depth)
+    }
+
+    /// The deepest active layer.
+    pub fn max_depth(&self) -> u32 {
+        self.stencils.values().map(|s| s.depth).max().unwrap_or(0)
+    }
+
+    /// Activates `extra` more layers of `key` (layers depth+1 ..= depth+extra)
+    /// and resets its calm counter.
+    pub fn deepen(&mut self, key: StencilKey, extra: u32) {
+        let s = self.stencils.entry(key).or_insert(LayerState {
+            depth: 0,
+            calm_windows: 0,
+        });
+        s.depth += extra;
+        s.calm_windows = 0;
+    }
+
+    /// Histogram: entry `i` = number of stencils with depth `i + 1`.
+    pub fn depth_histogram(&self) -> Vec<u64> {
+        let mut h = vec![0u64; self.max_depth() as usize];
+        for s in self.stencils.values() {
+            h[s.depth as usize - 1] += 1;
+        }
+        h
+    }
+}
+
+/// The impulses of one penalty-layer event on its stencil's four vertices.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PenaltyImpulse {
+    /// Impulse on each vertex (N·s), normal part plus friction.
+    pub impulse: [DVec3; 4],
+    /// Energy of the layer at the event (J), for diagnostics.
+    pub energy: f64,
+}
+
+/// The kick of layer `l` (step `h` seconds) on a stencil with closest-point
+/// data `c` (positions at the event) and velocities `v` at the start of the
+/// batch (Jacobi semantics for friction); `w` are inverse masses. `None` when
+/// the stencil is outside the layer (zero kick — it must leave no trace).
+///
+/// Normal: the layer force is `-dV/dx_j = k (eta - d) c_j n`, so the impulse is
+/// `h k (eta - d) c_j n`. Friction (Coulomb, Bridson et al. 2002 style): the
+/// relative velocity `v_rel = Σ c_j v_j` has tangential part `v_t`; the
+/// tangential impulse `I_t = -min(mu J_n, |v_t| / Σ c_j² w_j) v_t/|v_t|`
+/// (at most what stops the relative sliding) is distributed as `c_j I_t`.
+/// Both parts sum to zero over the stencil (Σ c_j = 0): linear momentum is
+/// conserved; friction does not conserve angular momentum.
+pub fn penalty_kick(
+    schedule: &LayerSchedule,
+    l: u32,
+    h: f64,
+    c: &Closest,
+    v: &[DVec3; 4],
+    w: &[f64; 4],
+    mu: f64,
+) -> Option<PenaltyImpulse> {
+    let eta = schedule.eta(l);
+    let gap = eta - c.d;
+    if gap <= 0.0 || gap.is_nan() {
+        return None;
+    }
+    let k = schedule.k(l);
+    let jn = h * k * gap;
+    let mut impulse = [DVec3::ZERO; 4];
+    for j in 0..4 {
+        impulse[j] = c.n * (jn * c.coeff[j]);
+    }
+    if mu > 0.0 {
+        let mut v_rel = DVec3::ZERO;
+        let mut m_inv = 0.0;
+        for j in 0..4 {
+            v_rel += v[j] * c.coeff[j];
+            m_inv += c.coeff[j] * c.coeff[j] * w[j];
+        }
+        let v_t = v_rel - c.n * v_rel.dot(c.n);
+        let speed = v_t.length();
+        if speed > 0.0 && m_inv > 0.0 {
+            let magnitude = (mu * jn).min(speed / m_inv);
+            let it = v_t * (-magnitude / speed);
+            for j in 0..4 {
+                impulse[j] += it * c.coeff[j];
+            }
+        }
+    }
+    Some(PenaltyImpulse {
+        impulse,
+        energy: 0.5 * k * gap * gap,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn schedule() -> LayerSchedule {
+        LayerSchedule {
+            eta_1: 1e-3,
+            eta_inf: 1e-4,
+            k_1: 10.0,
+            h_1: 1 << 20,
+        }
+    }
+
+    #[test]
+    fn schedule_is_nested_and_barrier_like() {
+        let s = schedule();
+        assert_eq!(s.eta(1), 1e-3);
+        for l in 1..50 {
+            assert!(s.eta(l + 1) < s.eta(l));
+            assert!(s.eta(l) > s.eta_inf);
+            assert!(s.step(l + 1) <= s.step(l));
+            // omega h = sqrt(k_l) h_l is the same for every layer (up to rounding).
+            let wh = (s.k(l)).sqrt() * s.step(l) as f64;
+            let wh1 = (s.k(1)).sqrt() * s.step(1) as f64;
+            assert!((wh / wh1 - 1.0).abs() < 1e-5, "layer {l}");
+        }
+    }
+
+    #[test]
+    fn kick_is_zero_outside_and_momentum_free_inside() {
+        let s = schedule();
+        let c = Closest {
+            d: 2e-3,
+            n: DVec3::Z,
+            coeff: [1.0, -0.2, -0.3, -0.5],
+        };
+        let v = [DVec3::X, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO];
+        assert!(penalty_kick(&s, 1, 1e-3, &c, &v, &[1.0; 4], 0.5).is_none());
+        let c = Closest { d: 5e-4, ..c };
+        let k = penalty_kick(&s, 1, 1e-3, &c, &v, &[1.0; 4], 0.5).unwrap();
+        let total: DVec3 = k.impulse.iter().copied().sum();
+        assert!(total.length() < 1e-18);
+        assert!(k.impulse[0].z > 0.0, "pushes the vertex out along n");
+        assert!(k.impulse[0].x < 0.0, "friction opposes sliding");
+    }
+}

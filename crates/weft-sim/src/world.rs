@@ -1,0 +1,504 @@
+//! The simulated world: state, topology, forces, scripts and schedules, built
+//! from a [`WorldSpec`].
+//!
+//! Vertices of all objects are concatenated in object order: a vertex's index in
+//! [`World::x`] is its **input id**, the id every key and every output uses.
+
+use std::ops::Range;
+
+use glam::DVec3;
+use weft_core::{Topology, TriMesh};
+
+use crate::clock::{Lattice, Tick};
+use crate::config::{ContactConfig, LimitsConfig, TimeConfig};
+use crate::error::{Place, SimError};
+use crate::internal::InternalForces;
+use crate::kinematics::{Motion, Script};
+use crate::layers::{ActiveLayers, LayerSchedule};
+use crate::materials::{self, Material};
+
+/// What an object is.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ObjectKind {
+    /// Deformable cloth with a material, a rest shape and initial velocities.
+    Cloth {
+        material: Material,
+        /// Rest shape (same connectivity); `None` = the initial shape.
+        rest: Option<Vec<DVec3>>,
+        /// Initial velocity of every vertex (m/s); empty = zero.
+        velocity: Vec<DVec3>,
+    },
+    /// A kinematic obstacle moving along a script.
+    Obstacle { motion: Motion },
+}
+
+/// One object of a scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ObjectSpec {
+    pub name: String,
+    pub mesh: TriMesh,
+    pub kind: ObjectKind,
+}
+
+/// Cloth vertices held by a script.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PinSpec {
+    pub name: String,
+    /// Index of the object in [`WorldSpec::objects`].
+    pub object: usize,
+    /// Object-local vertex indices.
+    pub vertices: Vec<u32>,
+    pub motion: Motion,
+}
+
+/// Everything needed to build a [`World`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct WorldSpec {
+    pub objects: Vec<ObjectSpec>,
+    pub pins: Vec<PinSpec>,
+    pub gravity: DVec3,
+    pub contact: ContactConfig,
+    pub time: TimeConfig,
+    pub limits: LimitsConfig,
+    /// Number of partitions the internal forces are split into (contiguous
+    /// chunks of triangles in input order; results do not depend on it).
+    pub partitions: usize,
+}
+
+/// An object after concatenation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ObjectInfo {
+    pub name: String,
+    pub vertices: Range<u32>,
+    pub triangles: Range<u32>,
+    pub is_cloth: bool,
+}
+
+/// The simulated world.
+#[derive(Clone, Debug)]
+pub struct World {
+    pub objects: Vec<ObjectInfo>,
+    /// Positions (valid at `tau`), velocities, the time positions are valid at.
+    pub x: Vec<DVec3>,
+    pub v: Vec<DVec3>,
+    pub tau: Vec<Tick>,
+    pub mass: Vec<f64>,
+    /// Inverse masses; 0 for kinematic vertices.
+    pub inv_mass: Vec<f64>,
+    pub triangles: Vec<[u32; 3]>,
+    pub topology: Topology,
+    pub internal: InternalForces,
+    pub gravity: DVec3,
+    pub scripts: Vec<Script>,
+    /// `script_of[i]` = (script, index in script) for kinematic vertex i.
+    pub script_of: Vec<Option<(u32, u32)>>,
+    pub schedule: LayerSchedule,
+    pub contact: ContactConfig,
+    pub lattice: Lattice,
+    pub limits: LimitsConfig,
+    /// Current time: the start of the next window.
+    pub tick: Tick,
+    /// Committed windows so far.
+    pub window_index: u64,
+    pub layers: ActiveLayers,
+    /// Largest angular frequency of the assembled rest system (rad/s).
+    pub omega_max: f64,
+}
+
+impl World {
+    /// Builds and validates a world. Does not check the initial state for
+    /// contact (see [`crate::engine::Engine::new`]).
+    pub fn build(spec: &WorldSpec) -> Result<Self, SimError> {
+        if spec.objects.is_empty() {
+            return Err(SimError::Config("the scene has no objects".into()));
+        }
+        let mut objects = Vec::new();
+        let mut all = TriMesh::default();
+        let mut rest_all: Vec<DVec3> = Vec::new();
+        let mut v = Vec::new();
+        let mut tri_material: Vec<Option<u16>> = Vec::new();
+        let mut materials_list: Vec<Material> = Vec::new();
+        let mut scripts = Vec::new();
+        let mut kinematic = Vec::new();
+        for obj in &spec.objects {
+            weft_core::validate(&obj.mesh).map_err(|e| SimError::Mesh {
+                object: obj.name.clone(),
+                source: e,
+            })?;
+            let v0 = all.positions.len() as u32;
+            let t0 = all.triangles.len() as u32;
+            all.append(&obj.mesh);
+            let n = obj.mesh.num_vertices();
+            match &obj.kind {
+                ObjectKind::Cloth {
+                    material,
+                    rest,
+                    velocity,
+                } => {
+                    material.validate().map_err(|e| SimError::Material {
+                        object: obj.name.clone(),
+                        source: e,
+                    })?;
+                    let rest = rest.clone().unwrap_or_else(|| obj.mesh.positions.clone());
+                    if rest.len() != n {
+                        return Err(SimError::Config(format!(
+                            "object '{}': rest shape has {} vertices, the mesh has {n}",
+                            obj.name,
+                            rest.len()
+                        )));
+                    }
+                    if let Some(i) = rest.iter().position(|p| !p.is_finite()) {
+                        return Err(SimError::Config(format!(
+                            "object '{}': rest-shape vertex {i} is not finite",
+                            obj.name
+                        )));
+                    }
+                    rest_all.extend_from_slice(&rest);
+                    match velocity.len() {
+                        0 => v.extend(std::iter::repeat_n(DVec3::ZERO, n)),
+                        m if m == n => v.extend_from_slice(velocity),
+                        m => {
+                            return Err(SimError::Config(format!(
+                                "object '{}': {m} initial velocities for {n} vertices",
+                                obj.name
+                            )))
+                        }
+                    }
+                    if let Some(i) = v[v0 as usize..].iter().position(|p| !p.is_finite()) {
+                        return Err(SimError::Config(format!(
+                            "object '{}': initial velocity of vertex {i} is not finite",
+                            obj.name
+                        )));
+                    }
+                    let m = materials_list.len() as u16;
+                    materials_list.push(material.clone());
+                    tri_material.extend(std::iter::repeat_n(Some(m), obj.mesh.num_triangles()));
+                    kinematic.extend(std::iter::repeat_n(false, n));
+                }
+                ObjectKind::Obstacle { motion } => {
+                    rest_all.extend_from_slice(&obj.mesh.positions);
+                    v.extend(std::iter::repeat_n(DVec3::ZERO, n));
+                    tri_material.extend(std::iter::repeat_n(None, obj.mesh.num_triangles()));
+                    kinematic.extend(std::iter::repeat_n(true, n));
+                    scripts.push(Script {
+                        name: obj.name.clone(),
+                        vertices: (v0..v0 + n as u32).collect(),
+                        rest: obj.mesh.positions.clone(),
+                        motion: normalize_motion(motion, &obj.name)?,
+                    });
+                }
+            }
+            objects.push(ObjectInfo {
+                name: obj.name.clone(),
+                vertices: v0..v0 + n as u32,
+                triangles: t0..all.triangles.len() as u32,
+                is_cloth: matches!(obj.kind, ObjectKind::Cloth { .. }),
+            });
+        }
+        for pin in &spec.pins {
+            let obj = objects.get(pin.object).ok_or_else(|| {
+                SimError::Config(format!("pin '{}' names object {}", pin.name, pin.object))
+            })?;
+            if !obj.is_cloth {
+                return Err(SimError::Config(format!(
+                    "pin '{}' holds object '{}', which is an obstacle (already kinematic)",
+                    pin.name, obj.name
+                )));
+            }
+            let n = obj.vertices.len() as u32;
+            let mut ids = Vec::with_capacity(pin.vertices.len());
+            for &lv in &pin.vertices {
+                if lv >= n {
+                    return Err(SimError::Config(format!(
+                        "pin '{}': vertex {lv} is out of range (object '{}' has {n} vertices)",
+                        pin.name, obj.name
+                    )));
+                }
+                let g = obj.vertices.start + lv;
+                if kinematic[g as usize] {
+                    return Err(SimError::Config(format!(
+                        "pin '{}': vertex {lv} of '{}' is already held by another pin",
+                        pin.name, obj.name
+                    )));
+                }
+                kinematic[g as usize] = true;
+                ids.push(g);
+            }
+            if ids.is_empty() {
+                return Err(SimError::Config(format!(
+                    "pin '{}' selects no vertices",
+                    pin.name
+                )));
+            }
+            scripts.push(Script {
+                name: pin.name.clone(),
+                rest: ids.iter().map(|&g| all.positions[g as usize]).collect(),
+                vertices: ids,
+                motion: normalize_motion(&pin.motion, &pin.name)?,
+            });
+        }
+        let nv = all.positions.len();
+        let topology =
+            Topology::build(nv, &all.triangles).map_err(|e| SimError::Mesh {
+                object: "(all objects)".into(),
+                source: e,
+            })?;
+
+        // Masses: lumped cloth masses; kinematic vertices get w = 0.
+        let density: Vec<f64> = tri_material
+            .iter()
+            .map(|m| m.map_or(0.0, |m| materials_list[m as usize].area_density))
+            .collect();
+        let mass = materials::lumped_masses(nv, &all.triangles, &rest_all, &density);
+        let mut inv_mass = vec![0.0; nv];
+        for i in 0..nv {
+            if !kinematic[i] {
+                if !(mass[i] > 0.0) {
+                    let place = place_of(&objects, i as u32);
+                    return Err(SimError::Config(format!(
+                        "cloth vertex {place} has no mass (it belongs to no triangle); \
+                         remove unreferenced vertices"
+                    )));
+                }
+                inv_mass[i] = 1.0 / mass[i];
+            }
+        }
+        let mut script_of = vec![None; nv];
+        for (s, script) in scripts.iter().enumerate() {
+            for (k, &g) in script.vertices.iter().enumerate() {
+                script_of[g as usize] = Some((s as u32, k as u32));
+            }
+        }
+
+        let internal = InternalForces::build(
+            &all.triangles,
+            &tri_material,
+            &topology,
+            &rest_all,
+            &materials_list,
+            &inv_mass,
+            spec.partitions.max(1),
+        )
+        .map_err(|(f, e)| SimError::Material {
+            object: place_of_triangle(&objects, f).object,
+            source: e,
+        })?;
+
+        // Internal step: beta * 2 / omega_max of the assembled rest system.
+        let omega_max = internal.max_frequency(&rest_all, &mass);
+        let h_el = match spec.time.internal_step {
+            Some(h) if h > 0.0 && h.is_finite() => h,
+            Some(h) => {
+                return Err(SimError::Config(format!(
+                    "time.internal_step = {h} must be a positive number of seconds"
+                )))
+            }
+            None => {
+                if !(spec.time.beta > 0.0 && spec.time.beta <= 0.5) {
+                    return Err(SimError::Config(format!(
+                        "time.beta = {} must be in (0, 0.5]",
+                        spec.time.beta
+                    )));
+                }
+                if omega_max > 0.0 && omega_max.is_finite() {
+                    materials::stable_step(omega_max, spec.time.beta)
+                } else {
+                    return Err(SimError::Config(
+                        "no cloth stiffness to derive the internal step from; set time.internal_step"
+                            .into(),
+                    ));
+                }
+            }
+        };
+        internal
+            .check_damping(h_el, omega_max, &rest_all, &mass)
+            .map_err(|e| SimError::Material {
+                object: "(cloth damping)".into(),
+                source: e,
+            })?;
+        let lattice = Lattice::new(h_el, spec.time.steps_per_window);
+
+        // Contact thickness: at most half the smallest cloth triangle altitude.
+        let c = &spec.contact;
+        if !(c.thickness > 0.0 && c.thickness.is_finite()) {
+            return Err(SimError::Config(format!(
+                "contact.thickness = {} must be positive",
+                c.thickness
+            )));
+        }
+        if !(0.0..1.0).contains(&c.floor_fraction) {
+            return Err(SimError::Config(format!(
+                "contact.floor = {} must be in [0, 1)",
+                c.floor_fraction
+            )));
+        }
+        if c.layers_per_detection == 0 {
+            return Err(SimError::Config(
+                "contact.layers_per_detection must be at least 1".into(),
+            ));
+        }
+        let min_alt = all
+            .triangles
+            .iter()
+            .zip(&tri_material)
+            .filter(|(_, m)| m.is_some())
+            .map(|(t, _)| min_altitude([all.positions[t[0] as usize], all.positions[t[1] as usize], all.positions[t[2] as usize]]))
+            .fold(f64::INFINITY, f64::min);
+        let eta_1 = c.thickness.min(0.5 * min_alt);
+        let ticks_h1 = lattice.internal_step() >> c.layer1_step_shift.min(20);
+        let h_1 = lattice.seconds(ticks_h1);
+        let m_min = mass
+            .iter()
+            .zip(&inv_mass)
+            .filter(|(_, &w)| w > 0.0)
+            .map(|(&m, _)| m)
+            .fold(f64::INFINITY, f64::min);
+        let k_1 = match c.stiffness {
+            Some(k) if k > 0.0 && k.is_finite() => k,
+            Some(k) => {
+                return Err(SimError::Config(format!(
+                    "contact.stiffness = {k} must be positive"
+                )))
+            }
+            None if m_min.is_finite() => m_min * (0.1 / h_1) * (0.1 / h_1) / 2.0,
+            None => 1.0,
+        };
+        let schedule = LayerSchedule {
+            eta_1,
+            eta_inf: c.floor_fraction * eta_1,
+            k_1,
+            h_1: ticks_h1,
+        };
+
+        let mut world = World {
+            objects,
+            x: all.positions,
+            v,
+            tau: vec![0; nv],
+            mass,
+            inv_mass,
+            triangles: all.triangles,
+            topology,
+            internal,
+            gravity: spec.gravity,
+            scripts,
+            script_of,
+            schedule,
+            contact: spec.contact.clone(),
+            lattice,
+            limits: spec.limits.clone(),
+            tick: 0,
+            window_index: 0,
+            layers: ActiveLayers::default(),
+            omega_max,
+        };
+        // Kinematic vertices start on the chord to their scripted position one
+        // internal step later.
+        let h = world.lattice.h_el();
+        for i in 0..nv {
+            if let Some((s, k)) = world.script_of[i] {
+                world.v[i] = world.scripts[s as usize].chord_velocity(k as usize, world.x[i], 0.0, h);
+            }
+        }
+        Ok(world)
+    }
+
+    /// Number of vertices.
+    pub fn num_vertices(&self) -> usize {
+        self.x.len()
+    }
+
+    /// Object name and object-local index of vertex `i`.
+    pub fn place(&self, i: u32) -> Place {
+        place_of(&self.objects, i)
+    }
+
+    /// Object name and object-local index of triangle `f`.
+    pub fn triangle_place(&self, f: u32) -> Place {
+        place_of_triangle(&self.objects, f)
+    }
+
+    /// Simulated time in seconds.
+    pub fn time(&self) -> f64 {
+        self.lattice.seconds(self.tick)
+    }
+}
+
+fn normalize_motion(m: &Motion, name: &str) -> Result<Motion, SimError> {
+    match m {
+        Motion::Rotate {
+            center,
+            axis,
+            profile,
+        } => {
+            let len = axis.length();
+            if !(len > 0.0 && len.is_finite()) || !center.is_finite() {
+                return Err(SimError::Config(format!(
+                    "script '{name}': rotation axis must be a non-zero finite vector"
+                )));
+            }
+            if profile.windows(2).any(|w| !(w[1].0 >= w[0].0))
+                || profile.iter().any(|p| !p.0.is_finite() || !p.1.is_finite())
+            {
+                return Err(SimError::Config(format!(
+                    "script '{name}': the angular-velocity profile needs finite (time, omega) points in increasing time"
+                )));
+            }
+            Ok(Motion::Rotate {
+                center: *center,
+                axis: *axis / len,
+                profile: profile.clone(),
+            })
+        }
+        Motion::Translate { velocity } if !velocity.is_finite() => Err(SimError::Config(
+            format!("script '{name}': velocity must be finite"),
+        )),
+        other => Ok(other.clone()),
+    }
+}
+
+fn place_of(objects: &[ObjectInfo], i: u32) -> Place {
+    objects
+        .iter()
+        .find(|o| o.vertices.contains(&i))
+        .map_or(
+            Place {
+                object: "?".into(),
+                local: i,
+            },
+            |o| Place {
+                object: o.name.clone(),
+                local: i - o.vertices.start,
+            },
+        )
+}
+
+fn place_of_triangle(objects: &[ObjectInfo], f: u32) -> Place {
+    objects
+        .iter()
+        .find(|o| o.triangles.contains(&f))
+        .map_or(
+            Place {
+                object: "?".into(),
+                local: f,
+            },
+            |o| Place {
+                object: o.name.clone(),
+                local: f - o.triangles.start,
+            },
+        )
+}
+
+/// Smallest altitude of a triangle: 2 A / longest edge.
+pub fn min_altitude(p: [DVec3; 3]) -> f64 {
+    let area2 = (p[1] - p[0]).cross(p[2] - p[0]).length();
+    let longest = (p[1] - p[0])
+        .length()
+        .max((p[2] - p[1]).length())
+        .max((p[0] - p[2]).length());
+    if longest > 0.0 {
+        area2 / longest
+    } else {
+        0.0
+    }
+}
