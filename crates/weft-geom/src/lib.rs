@@ -9,4 +9,5 @@ pub mod ccd;
 pub mod distance;
 pub mod dop;
 pub mod intersections;
+pub mod shapes;
 pub mod tri_tri;

@@ -66,7 +66,12 @@ impl BroadPhase {
         self.last_pairs = self.pairs.len();
         let mut keys = Vec::with_capacity(self.pairs.len() * 4);
         for &(a, b) in &self.pairs {
-            stencils_of_pair(triangles[a as usize], triangles[b as usize], inv_mass, &mut keys);
+            stencils_of_pair(
+                triangles[a as usize],
+                triangles[b as usize],
+                inv_mass,
+                &mut keys,
+            );
         }
         keys.sort_unstable();
         keys.dedup();

@@ -44,4 +44,19 @@ pub struct WindowStats {
     pub angular_momentum: [f64; 3],
     /// Wall-clock seconds spent on the window (all passes).
     pub wall_seconds: f64,
+    /// Wall-clock seconds per stage, summed over all passes.
+    pub stage_seconds: StageSeconds,
+}
+
+/// The stages of one window pass, each with its wall-clock time.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StageSeconds {
+    /// Event batches (internal forces, penalty layers, scripts) and trajectories.
+    pub events: f64,
+    /// Broad phase (DOPs, BVH, stencil filtering).
+    pub broad: f64,
+    /// Narrow phase (continuous proximity tests).
+    pub narrow: f64,
+    /// Commit: layer retirement and diagnostics.
+    pub commit: f64,
 }

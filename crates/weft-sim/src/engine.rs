@@ -28,7 +28,7 @@ use weft_geom::distance::{stencil_closest, Closest};
 
 use crate::broad::BroadPhase;
 use crate::clock::{next_multiple_after, Tick};
-use crate::diagnostics::WindowStats;
+use crate::diagnostics::{StageSeconds, WindowStats};
 use crate::error::SimError;
 use crate::executor::{Executor, Serial};
 use crate::layers::penalty_kick;
@@ -65,6 +65,9 @@ struct Workspace {
     xt: Vec<DVec3>,
     out: Vec<DVec3>,
     acc: Vec<DVec3>,
+    /// Friction impulses of the batch and the largest single one, per vertex.
+    friction: Vec<DVec3>,
+    friction_max: Vec<f64>,
     touched: Vec<u32>,
     is_touched: Vec<bool>,
     /// Per active stencil: (tick + 1 of the batch it was computed in, data).
@@ -104,6 +107,8 @@ impl<E: Executor> Engine<E> {
                 xt: vec![DVec3::ZERO; n],
                 out: vec![DVec3::ZERO; world.internal.num_slots()],
                 acc: vec![DVec3::ZERO; n],
+                friction: vec![DVec3::ZERO; n],
+                friction_max: vec![0.0; n],
                 is_touched: vec![false; n],
                 bounds: world.internal.slot_bounds(),
                 ..Default::default()
@@ -186,8 +191,12 @@ impl<E: Executor> Engine<E> {
         };
         let mut rollbacks = 0u32;
         let mut confirmed = 0u64;
+        let mut stages = StageSeconds::default();
         loop {
+            let clock = Instant::now();
             let counts = self.run_events(t0, t1)?;
+            stages.events += clock.elapsed().as_secs_f64();
+            let clock = Instant::now();
             let candidates = {
                 let w = &self.world;
                 self.ws.broad.candidates(
@@ -197,11 +206,15 @@ impl<E: Executor> Engine<E> {
                     0.5 * w.schedule.eta_1,
                 )
             };
+            stages.broad += clock.elapsed().as_secs_f64();
+            let clock = Instant::now();
             let reported = self.narrow_phase(&candidates);
+            stages.narrow += clock.elapsed().as_secs_f64();
             if reported.is_empty() {
+                let clock = Instant::now();
                 let retired = self.commit(&candidates);
                 self.world.tick = t1;
-                let stats = self.window_stats(
+                let mut stats = self.window_stats(
                     counts,
                     rollbacks,
                     candidates.len() as u64,
@@ -210,6 +223,8 @@ impl<E: Executor> Engine<E> {
                     &candidates,
                     started,
                 );
+                stages.commit += clock.elapsed().as_secs_f64();
+                stats.stage_seconds = stages;
                 self.world.window_index += 1;
                 self.totals.windows += 1;
                 self.totals.rollbacks += rollbacks as u64;
@@ -280,9 +295,7 @@ impl<E: Executor> Engine<E> {
             }
         }
         self.ws.closest.clear();
-        self.ws
-            .closest
-            .resize(active.len(), (0, NO_CLOSEST));
+        self.ws.closest.resize(active.len(), (0, NO_CLOSEST));
         loop {
             let t = next.iter().copied().min().unwrap_or(t1);
             if t >= t1 {
@@ -372,7 +385,11 @@ impl<E: Executor> Engine<E> {
                     for j in 0..4 {
                         let i = key.v[j] as usize;
                         if inv[j] > 0.0 {
-                            ws.acc[i] += k.impulse[j];
+                            ws.acc[i] += k.normal[j];
+                            if mu > 0.0 {
+                                ws.friction[i] += k.friction[j];
+                                ws.friction_max[i] = ws.friction_max[i].max(k.friction[j].length());
+                            }
                             if !ws.is_touched[i] {
                                 ws.is_touched[i] = true;
                                 ws.touched.push(i as u32);
@@ -397,9 +414,19 @@ impl<E: Executor> Engine<E> {
                     v_old
                 }
             } else {
-                v_old + ws.acc[i] * world.inv_mass[i]
+                // Per-vertex friction clamp: the batch's summed friction is at
+                // most the largest single stencil's, which on its own only
+                // stops (never reverses) that stencil's relative sliding.
+                let mut f = ws.friction[i];
+                let (len, cap) = (f.length(), ws.friction_max[i]);
+                if len > cap {
+                    f *= cap / len;
+                }
+                v_old + (ws.acc[i] + f) * world.inv_mass[i]
             };
             ws.acc[i] = DVec3::ZERO;
+            ws.friction[i] = DVec3::ZERO;
+            ws.friction_max[i] = 0.0;
             ws.is_touched[i] = false;
             if v_new != v_old {
                 let x = xt.unwrap_or_else(|| Self::pos_at(world, i, t));
@@ -466,9 +493,8 @@ impl<E: Executor> Engine<E> {
         for key in keys {
             let near = candidates.binary_search(&key).is_ok();
             let traj = key.v.map(|i| self.traj.of(i as usize));
-            let certified_outside = |eta: f64, ccd: &mut CcdStats| {
-                !near || !proximity(key.kind, &traj, eta, ccd)
-            };
+            let certified_outside =
+                |eta: f64, ccd: &mut CcdStats| !near || !proximity(key.kind, &traj, eta, ccd);
             let s = w.layers.stencils.get_mut(&key).expect("active stencil");
             if !certified_outside(w.schedule.eta(s.depth), &mut self.ccd) {
                 s.calm_windows = 0;
@@ -517,8 +543,7 @@ impl<E: Executor> Engine<E> {
             time: w.time(),
             tick: w.tick,
             internal_events: counts.internal_events,
-            internal_stencil_evaluations: counts.internal_events
-                * w.internal.num_stencils() as u64,
+            internal_stencil_evaluations: counts.internal_events * w.internal.num_stencils() as u64,
             layer_events: counts.layer_events,
             layer_kicks: counts.layer_kicks,
             rollbacks,
@@ -535,6 +560,7 @@ impl<E: Executor> Engine<E> {
             linear_momentum: lin.to_array(),
             angular_momentum: ang.to_array(),
             wall_seconds: started.elapsed().as_secs_f64(),
+            stage_seconds: StageSeconds::default(),
         }
     }
 

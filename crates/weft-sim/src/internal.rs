@@ -89,7 +89,11 @@ impl InternalForces {
         let mut stretch_material = Vec::with_capacity(stretch_keys.len());
         for &(_, f) in &stretch_keys {
             let t = triangles[f as usize];
-            let r = [rest[t[0] as usize], rest[t[1] as usize], rest[t[2] as usize]];
+            let r = [
+                rest[t[0] as usize],
+                rest[t[1] as usize],
+                rest[t[2] as usize],
+            ];
             stretch.push(StretchElement::new(t, r).map_err(|e| (f, e))?);
             stretch_material.push(tri_material[f as usize].unwrap_or(0));
         }
@@ -273,7 +277,13 @@ impl InternalForces {
 
     /// Rejects damping above its explicit stability limit at step `h`
     /// (`h γ + h² ω² / 2 ≤ 2` with `γ = λ_max(M⁻¹C)` at the rest shape).
-    pub fn check_damping(&self, h: f64, omega_max: f64, rest: &[DVec3], mass: &[f64]) -> Result<(), MaterialError> {
+    pub fn check_damping(
+        &self,
+        h: f64,
+        omega_max: f64,
+        rest: &[DVec3],
+        mass: &[f64],
+    ) -> Result<(), MaterialError> {
         if !self.damped {
             return Ok(());
         }

@@ -124,8 +124,10 @@ impl ActiveLayers {
 /// The impulses of one penalty-layer event on its stencil's four vertices.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PenaltyImpulse {
-    /// Impulse on each vertex (N·s), normal part plus friction.
-    pub impulse: [DVec3; 4],
+    /// Normal impulse on each vertex (N·s).
+    pub normal: [DVec3; 4],
+    /// Friction impulse on each vertex (N·s).
+    pub friction: [DVec3; 4],
     /// Energy of the layer at the event (J), for diagnostics.
     pub energy: f64,
 }
@@ -158,10 +160,8 @@ pub fn penalty_kick(
     }
     let k = schedule.k(l);
     let jn = h * k * gap;
-    let mut impulse = [DVec3::ZERO; 4];
-    for j in 0..4 {
-        impulse[j] = c.n * (jn * c.coeff[j]);
-    }
+    let normal = c.coeff.map(|cj| c.n * (jn * cj));
+    let mut friction = [DVec3::ZERO; 4];
     if mu > 0.0 {
         let mut v_rel = DVec3::ZERO;
         let mut m_inv = 0.0;
@@ -174,13 +174,12 @@ pub fn penalty_kick(
         if speed > 0.0 && m_inv > 0.0 {
             let magnitude = (mu * jn).min(speed / m_inv);
             let it = v_t * (-magnitude / speed);
-            for j in 0..4 {
-                impulse[j] += it * c.coeff[j];
-            }
+            friction = c.coeff.map(|cj| it * cj);
         }
     }
     Some(PenaltyImpulse {
-        impulse,
+        normal,
+        friction,
         energy: 0.5 * k * gap * gap,
     })
 }
@@ -225,9 +224,9 @@ mod tests {
         assert!(penalty_kick(&s, 1, 1e-3, &c, &v, &[1.0; 4], 0.5).is_none());
         let c = Closest { d: 5e-4, ..c };
         let k = penalty_kick(&s, 1, 1e-3, &c, &v, &[1.0; 4], 0.5).unwrap();
-        let total: DVec3 = k.impulse.iter().copied().sum();
+        let total: DVec3 = k.normal.iter().chain(&k.friction).copied().sum();
         assert!(total.length() < 1e-18);
-        assert!(k.impulse[0].z > 0.0, "pushes the vertex out along n");
-        assert!(k.impulse[0].x < 0.0, "friction opposes sliding");
+        assert!(k.normal[0].z > 0.0, "pushes the vertex out along n");
+        assert!(k.friction[0].x < 0.0, "friction opposes sliding");
     }
 }

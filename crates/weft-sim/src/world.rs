@@ -238,11 +238,10 @@ impl World {
             });
         }
         let nv = all.positions.len();
-        let topology =
-            Topology::build(nv, &all.triangles).map_err(|e| SimError::Mesh {
-                object: "(all objects)".into(),
-                source: e,
-            })?;
+        let topology = Topology::build(nv, &all.triangles).map_err(|e| SimError::Mesh {
+            object: "(all objects)".into(),
+            source: e,
+        })?;
 
         // Masses: lumped cloth masses; kinematic vertices get w = 0.
         let density: Vec<f64> = tri_material
@@ -342,7 +341,13 @@ impl World {
             .iter()
             .zip(&tri_material)
             .filter(|(_, m)| m.is_some())
-            .map(|(t, _)| min_altitude([all.positions[t[0] as usize], all.positions[t[1] as usize], all.positions[t[2] as usize]]))
+            .map(|(t, _)| {
+                min_altitude([
+                    all.positions[t[0] as usize],
+                    all.positions[t[1] as usize],
+                    all.positions[t[2] as usize],
+                ])
+            })
             .fold(f64::INFINITY, f64::min);
         let eta_1 = c.thickness.min(0.5 * min_alt);
         let ticks_h1 = lattice.internal_step() >> c.layer1_step_shift.min(20);
@@ -397,7 +402,8 @@ impl World {
         let h = world.lattice.h_el();
         for i in 0..nv {
             if let Some((s, k)) = world.script_of[i] {
-                world.v[i] = world.scripts[s as usize].chord_velocity(k as usize, world.x[i], 0.0, h);
+                world.v[i] =
+                    world.scripts[s as usize].chord_velocity(k as usize, world.x[i], 0.0, h);
             }
         }
         Ok(world)
@@ -450,43 +456,37 @@ fn normalize_motion(m: &Motion, name: &str) -> Result<Motion, SimError> {
                 profile: profile.clone(),
             })
         }
-        Motion::Translate { velocity } if !velocity.is_finite() => Err(SimError::Config(
-            format!("script '{name}': velocity must be finite"),
-        )),
+        Motion::Translate { velocity } if !velocity.is_finite() => Err(SimError::Config(format!(
+            "script '{name}': velocity must be finite"
+        ))),
         other => Ok(other.clone()),
     }
 }
 
 fn place_of(objects: &[ObjectInfo], i: u32) -> Place {
-    objects
-        .iter()
-        .find(|o| o.vertices.contains(&i))
-        .map_or(
-            Place {
-                object: "?".into(),
-                local: i,
-            },
-            |o| Place {
-                object: o.name.clone(),
-                local: i - o.vertices.start,
-            },
-        )
+    objects.iter().find(|o| o.vertices.contains(&i)).map_or(
+        Place {
+            object: "?".into(),
+            local: i,
+        },
+        |o| Place {
+            object: o.name.clone(),
+            local: i - o.vertices.start,
+        },
+    )
 }
 
 fn place_of_triangle(objects: &[ObjectInfo], f: u32) -> Place {
-    objects
-        .iter()
-        .find(|o| o.triangles.contains(&f))
-        .map_or(
-            Place {
-                object: "?".into(),
-                local: f,
-            },
-            |o| Place {
-                object: o.name.clone(),
-                local: f - o.triangles.start,
-            },
-        )
+    objects.iter().find(|o| o.triangles.contains(&f)).map_or(
+        Place {
+            object: "?".into(),
+            local: f,
+        },
+        |o| Place {
+            object: o.name.clone(),
+            local: f - o.triangles.start,
+        },
+    )
 }
 
 /// Smallest altitude of a triangle: 2 A / longest edge.

@@ -21,8 +21,9 @@ pub fn frame_files(paths: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
             let mut in_dir: Vec<PathBuf> = std::fs::read_dir(p)?
                 .filter_map(|e| e.ok().map(|e| e.path()))
                 .filter(|f| {
-                    f.extension()
-                        .is_some_and(|x| x.eq_ignore_ascii_case("ply") || x.eq_ignore_ascii_case("obj"))
+                    f.extension().is_some_and(|x| {
+                        x.eq_ignore_ascii_case("ply") || x.eq_ignore_ascii_case("obj")
+                    })
                 })
                 .collect();
             in_dir.sort();
@@ -47,7 +48,11 @@ pub fn run(a: CheckArgs) -> anyhow::Result<ExitCode> {
             println!("{}: ok ({} triangles)", f.display(), m.num_triangles());
         } else {
             bad += 1;
-            let shown: Vec<String> = hits.iter().take(5).map(|(a, b)| format!("{a}×{b}")).collect();
+            let shown: Vec<String> = hits
+                .iter()
+                .take(5)
+                .map(|(a, b)| format!("{a}×{b}"))
+                .collect();
             println!(
                 "{}: {} intersecting triangle pairs (first: {})",
                 f.display(),

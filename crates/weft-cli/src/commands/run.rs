@@ -181,7 +181,12 @@ pub fn simulate(scene: &Scene, out: &Path, quiet: bool) -> anyhow::Result<RunSum
 fn save_repro(out: &Path, world: &World) -> anyhow::Result<()> {
     let dir = out.join("repro");
     std::fs::create_dir_all(&dir)?;
-    weft_io::write_ply(&dir.join("window_start.ply"), &world.x, &world.triangles, Some(&world.v))?;
+    weft_io::write_ply(
+        &dir.join("window_start.ply"),
+        &world.x,
+        &world.triangles,
+        Some(&world.v),
+    )?;
     let layers: Vec<_> = world
         .layers
         .stencils

@@ -285,3 +285,49 @@ fn sub_segment(
     }
     true
 }
+
+/// Fixed-plane hull certificate over the whole span of `traj`.
+///
+/// Each primitive at time `t` is the convex hull of its vertices at `t`, and
+/// each vertex stays in the convex hull of its breakpoints; so if, along a
+/// fixed direction `n` (any vector, taken as exact), every breakpoint of the
+/// first primitive's vertices projects above every breakpoint of the second
+/// primitive's vertices by more than `eta |n|`, then `d > eta` at every instant.
+///
+/// Rounding: with `M` the largest absolute breakpoint coordinate, a computed
+/// projection `fl(n·p)` differs from `n·p` by at most `γ_3 Σ|n_k||p_k| ≤
+/// γ_3 |n|_1 M` (`γ_3 = 3u/(1-3u)`); the computed gap (one more subtraction)
+/// is then within `2 γ_3 |n|_1 M + u |gap|` of the exact gap of the computed
+/// extremes, and `|n|_2` computed is within `(1 + 2u)` of exact. We demand
+/// `gap > eta |n|_2 (1 + 4u) + 4 (2 γ_3 |n|_1 M + u |gap|) + 2^-1000`: four
+/// times the bound, plus an absolute slack for underflow.
+pub(crate) fn fixed_plane_hull(
+    kind: StencilKind,
+    traj: &[Trajectory<'_>; 4],
+    n: DVec3,
+    eta: f64,
+    max_coord: f64,
+) -> bool {
+    let split = match kind {
+        StencilKind::VertexFace => 1,
+        StencilKind::EdgeEdge => 2,
+    };
+    let mut lo_first = f64::INFINITY;
+    for tr in &traj[..split] {
+        for p in tr.points {
+            lo_first = lo_first.min(n.dot(*p));
+        }
+    }
+    let mut hi_second = f64::NEG_INFINITY;
+    for tr in &traj[split..] {
+        for p in tr.points {
+            hi_second = hi_second.max(n.dot(*p));
+        }
+    }
+    let gap = lo_first - hi_second;
+    let gamma3 = 3.0 * U / (1.0 - 3.0 * U);
+    let n1 = n.x.abs() + n.y.abs() + n.z.abs();
+    let err = 2.0 * gamma3 * n1 * max_coord + U * gap.abs();
+    let need = eta * n.length() * (1.0 + 4.0 * U) + MARGIN_C * err + UNDERFLOW_SLACK;
+    gap.is_finite() && gap > need
+}

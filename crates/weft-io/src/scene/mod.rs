@@ -5,7 +5,6 @@
 //! relative to the scene, runs the generators and validates every value.
 
 pub mod schema;
-pub mod shapes;
 
 use std::path::{Path, PathBuf};
 
@@ -338,7 +337,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                     ((g.resolution[0] as f64 * res_scale).round() as usize).max(2),
                     ((g.resolution[1] as f64 * res_scale).round() as usize).max(2),
                 ];
-                let flat = shapes::grid(v3(g.center), eu, ev, g.size, res);
+                let flat = weft_geom::shapes::grid(v3(g.center), eu, ev, g.size, res);
                 let mut m = flat.clone();
                 if g.wave != 0.0 {
                     let n = eu.cross(ev);
@@ -417,7 +416,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                         "radius must be positive and subdivisions at most 7",
                     ));
                 }
-                shapes::sphere(v3(s.center), s.radius, s.subdivisions)
+                weft_geom::shapes::sphere(v3(s.center), s.radius, s.subdivisions)
             }
             (None, None, Some(b), None) => {
                 if !(0..3).all(|k| b.max[k] > b.min[k]) {
@@ -427,7 +426,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                         "max must exceed min on every axis",
                     ));
                 }
-                shapes::cuboid(v3(b.min), v3(b.max))
+                weft_geom::shapes::cuboid(v3(b.min), v3(b.max))
             }
             (None, None, None, Some(c)) => {
                 if !pos(c.radius) || v3(c.from) == v3(c.to) {
@@ -437,7 +436,13 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                         "needs a positive radius and distinct ends",
                     ));
                 }
-                shapes::capped_cylinder(v3(c.from), v3(c.to), c.radius, c.segments, c.rings)
+                weft_geom::shapes::capped_cylinder(
+                    v3(c.from),
+                    v3(c.to),
+                    c.radius,
+                    c.segments,
+                    c.rings,
+                )
             }
             _ => {
                 return Err(invalid(
