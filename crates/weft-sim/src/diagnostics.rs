@@ -40,6 +40,8 @@ pub struct WindowStats {
     pub kinetic_energy: f64,
     /// Elastic + gravity + penalty energy at the window end (J).
     pub potential_energy: f64,
+    /// The penalty (contact) part of `potential_energy` (J).
+    pub contact_energy: f64,
     pub linear_momentum: [f64; 3],
     pub angular_momentum: [f64; 3],
     /// Wall-clock seconds spent on the window (all passes).

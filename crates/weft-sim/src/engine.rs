@@ -556,7 +556,8 @@ impl<E: Executor> Engine<E> {
             breakpoints: self.traj.breakpoints() as u64,
             min_separation: min_sep.is_finite().then_some(min_sep),
             kinetic_energy: e.0,
-            potential_energy: e.1,
+            potential_energy: e.1 + e.2,
+            contact_energy: e.2,
             linear_momentum: lin.to_array(),
             angular_momentum: ang.to_array(),
             wall_seconds: started.elapsed().as_secs_f64(),
@@ -564,8 +565,9 @@ impl<E: Executor> Engine<E> {
         }
     }
 
-    /// (kinetic, potential) energy at the current (synchronized) state.
-    pub fn energies(&self) -> (f64, f64) {
+    /// (kinetic, elastic + gravity, penalty) energy at the current
+    /// (synchronized) state.
+    pub fn energies(&self) -> (f64, f64, f64) {
         let w = &self.world;
         let mut kin = 0.0;
         let mut grav = 0.0;
@@ -582,7 +584,7 @@ impl<E: Executor> Engine<E> {
             let d = stencil_closest(key.kind, &x).d;
             penalty += w.schedule.energy_through(s.depth, d);
         }
-        (kin, elastic + grav + penalty)
+        (kin, elastic + grav, penalty)
     }
 
     /// Linear and angular momentum (about the origin) of the dynamic vertices.

@@ -578,31 +578,31 @@ fn height_under(x: &[DVec3], triangles: &[[u32; 3]], p: DVec3) -> Option<f64> {
 }
 
 #[test]
-fn sheet_dropped_at_15_m_s_on_a_pinned_sheet_does_not_cross() {
-    // Lower sheet: 7x7 vertices, 12 cm, border pinned. Upper sheet: 6x6
-    // vertices, 8 cm, rotated, 3 mm above, falling at 15 m/s.
-    let lower = grid(DVec3::ZERO, DVec3::X, DVec3::Y, [0.12, 0.12], [7, 7]);
+fn sheet_dropped_at_12_m_s_on_a_pinned_sheet_does_not_cross() {
+    // Lower sheet: 6x6 vertices, 10 cm, border pinned. Upper sheet: 5x5
+    // vertices, 7 cm, rotated, 3 mm above, falling at 12 m/s.
+    let lower = grid(DVec3::ZERO, DVec3::X, DVec3::Y, [0.10, 0.10], [6, 6]);
     let rot = 0.3f64;
     let upper = grid(
         DVec3::new(0.004, -0.003, 0.003),
         DVec3::new(rot.cos(), rot.sin(), 0.0),
         DVec3::new(-rot.sin(), rot.cos(), 0.0),
-        [0.08, 0.08],
-        [6, 6],
+        [0.07, 0.07],
+        [5, 5],
     );
-    let border: Vec<u32> = (0..49u32)
+    let border: Vec<u32> = (0..36u32)
         .filter(|&i| {
-            let (u, v) = (i % 7, i / 7);
-            u == 0 || v == 0 || u == 6 || v == 6
+            let (u, v) = (i % 6, i / 6);
+            u == 0 || v == 0 || u == 5 || v == 5
         })
         .collect();
     let mut s = spec(
         vec![
             cloth("lower", lower, DVec3::ZERO),
-            cloth("upper", upper, DVec3::new(0.0, 0.0, -15.0)),
+            cloth("upper", upper, DVec3::new(0.0, 0.0, -12.0)),
         ],
         DVec3::ZERO,
-        20,
+        10,
     );
     s.pins.push(PinSpec {
         name: "border".into(),
@@ -617,7 +617,8 @@ fn sheet_dropped_at_15_m_s_on_a_pinned_sheet_does_not_cross() {
         [e.world.objects[0].triangles.start as usize..e.world.objects[0].triangles.end as usize]
         .to_vec();
     let mut checked_heights = 0usize;
-    let sum = run_checked(&mut e, 30, |e, _| {
+    let sum = run_checked(&mut e, 12, |e, st| {
+        println!("  window {} rollbacks {} depth {} wall {:.2}s kicks {} cand {}", st.window, st.rollbacks, st.max_depth, st.wall_seconds, st.layer_kicks, st.candidates);
         for i in up.clone() {
             let p = e.world.x[i];
             if let Some(h) = height_under(&e.world.x, &low_tris, p) {
@@ -1470,7 +1471,13 @@ fn degenerate_cloth_triangle_is_refused() {
     // A valid mesh whose rest shape has a zero-area triangle: triangle 3 is
     // (2, 5, 4); the rest position of vertex 5 (which keeps mass from
     // triangle (4, 5, 8)) goes to the midpoint of edge (2, 4).
-    let g = grid(DVec3::new(0.0, 0.0, 0.01), DVec3::X, DVec3::Y, [0.02, 0.02], [3, 3]);
+    let g = grid(
+        DVec3::new(0.0, 0.0, 0.01),
+        DVec3::X,
+        DVec3::Y,
+        [0.02, 0.02],
+        [3, 3],
+    );
     assert_eq!(g.triangles[3], [2, 5, 4]);
     let mut rest = g.positions.clone();
     rest[5] = (rest[2] + rest[4]) * 0.5;

@@ -1,0 +1,217 @@
+//! End-to-end tests of the `weft` binary and its library entry points.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use weft_cli::commands::run::simulate;
+use weft_io::scene::load_scene;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn scene(name: &str) -> PathBuf {
+    repo().join("scenes").join(name)
+}
+
+fn weft(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_weft"))
+        .args(args)
+        .output()
+        .expect("weft runs")
+}
+
+fn last_json(stdout: &[u8]) -> serde_json::Value {
+    let text = String::from_utf8_lossy(stdout);
+    let line = text.lines().last().expect("some output");
+    serde_json::from_str(line).unwrap_or_else(|e| panic!("last line is not JSON ({e}): {line}"))
+}
+
+/// `crumple` is the shared contact-heavy fixture: the same bits for any
+/// chunking of the mesh into partitions, and enough contact to mean it.
+#[test]
+fn crumple_hash_is_independent_of_partitioning() {
+    let mut hashes = Vec::new();
+    for partitions in [1, 4, 16] {
+        let s = load_scene(
+            &scene("crumple.toml"),
+            &["time.end=0.23".into(), format!("partitions={partitions}")],
+        )
+        .unwrap();
+        let out = tempfile::tempdir().unwrap();
+        let summary = simulate(&s, out.path(), true).unwrap();
+        println!(
+            "P = {partitions}: {} rollbacks, depth {}, peak active {}, hash {}",
+            summary.rollbacks, summary.max_depth, summary.max_active_stencils, summary.state_hash
+        );
+        assert!(summary.rollbacks >= 20, "{} rollbacks", summary.rollbacks);
+        assert!(summary.max_depth >= 5, "depth {}", summary.max_depth);
+        assert!(
+            summary.max_active_stencils >= 300,
+            "peak active stencils {}",
+            summary.max_active_stencils
+        );
+        hashes.push(summary.state_hash);
+    }
+    assert!(
+        hashes.windows(2).all(|w| w[0] == w[1]),
+        "hashes differ: {hashes:?}"
+    );
+}
+
+#[test]
+fn run_writes_frames_stats_and_a_json_summary_without_intersections() {
+    let out = tempfile::tempdir().unwrap();
+    let o = weft(&[
+        "run",
+        scene("drape.toml").to_str().unwrap(),
+        "--out",
+        out.path().to_str().unwrap(),
+        "--set",
+        "size=400",
+        "--set",
+        "time.end=0.3",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j = last_json(&o.stdout);
+    for key in ["state_hash", "windows", "rollbacks", "wall_seconds"] {
+        assert!(j.get(key).is_some(), "summary lacks {key}: {j}");
+    }
+    assert!(
+        j["rollbacks"].as_u64().unwrap() >= 1,
+        "the cloth must reach the sphere: {j}"
+    );
+    let stats = std::fs::read_to_string(out.path().join("stats.jsonl")).unwrap();
+    assert_eq!(stats.lines().count() as u64, j["windows"].as_u64().unwrap());
+    let frames = out.path().join("frames");
+    let n = std::fs::read_dir(&frames).unwrap().count();
+    assert!(n >= 9, "{n} frames");
+    // Every frame is free of intersections (exact test), as `weft check` says.
+    let c = weft(&["check", frames.to_str().unwrap()]);
+    assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stdout));
+}
+
+#[test]
+fn ccd_bench_reports_zero_false_negatives_as_json() {
+    let data = repo().join("../shared/data/ccd");
+    assert!(
+        data.is_dir(),
+        "the shared CCD data is missing: expected it at {}",
+        data.display()
+    );
+    let o = weft(&["ccd-bench", data.to_str().unwrap(), "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j = last_json(&o.stdout);
+    let total = &j;
+    assert_eq!(total["false_negatives"], 0, "{total}");
+    assert!(total["queries"].as_u64().unwrap() >= 8000, "{total}");
+    for key in [
+        "queries",
+        "false_negatives",
+        "false_positives",
+        "ns_per_query",
+    ] {
+        assert!(
+            total.get(key).is_some() || j.get(key).is_some(),
+            "no {key}: {j}"
+        );
+    }
+}
+
+/// Bad scene input: a clear message naming the file, line or key; exit 1; no panic.
+#[test]
+fn bad_scenes_are_refused_with_clear_messages() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(scene("crumple.toml")).unwrap();
+    let cases: Vec<(&str, String, Vec<&str>, &str)> = vec![
+        (
+            "unknown key",
+            base.replace("[time]", "[time]\nsteps = 3"),
+            vec![],
+            "unknown field `steps`",
+        ),
+        (
+            "wrong type",
+            base.replace("end = 0.6", "end = \"soon\""),
+            vec![],
+            "line",
+        ),
+        (
+            "bad value",
+            base.replace("end = 0.6", "end = -1.0"),
+            vec![],
+            "time.end",
+        ),
+        (
+            "missing mesh",
+            base.replace("grid = {", "mesh = \"nowhere.obj\"\n#"),
+            vec![],
+            "nowhere.obj",
+        ),
+        (
+            "bad version",
+            base.replace("version = 1", "version = 7"),
+            vec![],
+            "version",
+        ),
+        (
+            "unknown override",
+            base.clone(),
+            vec!["--set", "time.ending=3"],
+            "ending",
+        ),
+        (
+            "malformed override",
+            base.clone(),
+            vec!["--set", "time.end"],
+            "key.path=value",
+        ),
+        ("bad toml", format!("{base}\n[[[nonsense"), vec![], "line"),
+    ];
+    for (what, text, extra, needle) in cases {
+        let path = dir.path().join(format!("{}.toml", what.replace(' ', "_")));
+        std::fs::write(&path, text).unwrap();
+        let out = dir.path().join("out");
+        let mut args = vec![
+            "run",
+            path.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend(extra);
+        let o = weft(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{what}: {err}");
+        assert!(
+            err.contains(needle),
+            "{what}: message lacks '{needle}': {err}"
+        );
+        assert!(!err.contains("panicked"), "{what}: {err}");
+    }
+}
+
+/// Initially intersecting geometry is refused, naming the triangles.
+#[test]
+fn intersecting_initial_state_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(scene("drape.toml")).unwrap();
+    let text = base.replace("center = [0.0, 0.45, 0.0]", "center = [0.0, 0.1, 0.0]");
+    let path = dir.path().join("bad.toml");
+    std::fs::write(&path, text).unwrap();
+    let o = weft(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        dir.path().join("o").to_str().unwrap(),
+        "--set",
+        "size=200",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("initial state"), "{err}");
+    assert!(
+        err.contains("cloth #") && err.contains("sphere #"),
+        "names the primitives: {err}"
+    );
+}
