@@ -40,7 +40,15 @@ impl StencilKey {
         }
     }
 
-    /// EE key for edges `a` and `b` (input ids), canonicalized.
+    /// EE key for edges `a` and `b` (input ids), canonicalized: the same key
+    /// whichever way round the edges and their ends are given.
+    ///
+    /// ```
+    /// use weft_core::StencilKey;
+    /// let k = StencilKey::edge_edge([8, 3], [1, 6]);
+    /// assert_eq!(k, StencilKey::edge_edge([6, 1], [3, 8]));
+    /// assert_eq!(k.v, [1, 6, 3, 8]);
+    /// ```
     pub fn edge_edge(a: [u32; 2], b: [u32; 2]) -> Self {
         let a = if a[0] <= a[1] { a } else { [a[1], a[0]] };
         let b = if b[0] <= b[1] { b } else { [b[1], b[0]] };

@@ -276,8 +276,14 @@ impl<E: Executor> Engine<E> {
             .collect();
         let max_depth = active.iter().map(|a| a.1).max().unwrap_or(0);
         // Clock periods: [internal, layer 1, ..., layer max_depth].
+        // (eta_l, k_l, h_l) of every layer in use, computed once per pass
+        // (they involve libm::pow).
+        let sched = &self.world.schedule;
+        let layer_consts: Vec<(f64, f64, Tick)> = (1..=max_depth)
+            .map(|l| (sched.eta(l), sched.k(l), sched.step(l)))
+            .collect();
         let mut periods = vec![self.world.lattice.internal_step()];
-        periods.extend((1..=max_depth).map(|l| self.world.schedule.step(l)));
+        periods.extend(layer_consts.iter().map(|c| c.2));
         let first_at_or_after = |p: Tick| {
             if t0 > 0 && t0 % p == 0 {
                 t0
@@ -308,7 +314,7 @@ impl<E: Executor> Engine<E> {
                     *nt += periods[c];
                 }
             }
-            self.batch(t, &firing, &active, &by_layer, &mut counts)?;
+            self.batch(t, &firing, &active, &by_layer, &layer_consts, &mut counts)?;
         }
         // Drift everything to the window end.
         let w = &mut self.world;
@@ -330,6 +336,7 @@ impl<E: Executor> Engine<E> {
         firing: &[u32],
         active: &[(StencilKey, u32)],
         by_layer: &[Vec<u32>],
+        layer_consts: &[(f64, f64, Tick)],
         counts: &mut PassCounts,
     ) -> Result<(), SimError> {
         let internal = firing.first() == Some(&0);
@@ -358,7 +365,11 @@ impl<E: Executor> Engine<E> {
         let layer_clocks = if internal { &firing[1..] } else { firing };
         let mu = w.contact.friction;
         for &l in layer_clocks {
-            let h_l = w.lattice.seconds(w.schedule.step(l));
+            let (eta_l, k_l) = (
+                layer_consts[l as usize - 1].0,
+                layer_consts[l as usize - 1].1,
+            );
+            let h_l = w.lattice.seconds(layer_consts[l as usize - 1].2);
             for &a in &by_layer[l as usize - 1] {
                 let key = &active[a as usize].0;
                 counts.layer_events += 1;
@@ -380,7 +391,7 @@ impl<E: Executor> Engine<E> {
                 };
                 let v = key.v.map(|i| w.v[i as usize]);
                 let inv = key.v.map(|i| w.inv_mass[i as usize]);
-                if let Some(k) = penalty_kick(&w.schedule, l, h_l, &c, &v, &inv, mu) {
+                if let Some(k) = penalty_kick(eta_l, k_l, h_l, &c, &v, &inv, mu) {
                     counts.layer_kicks += 1;
                     for j in 0..4 {
                         let i = key.v[j] as usize;

@@ -24,6 +24,15 @@ use weft_geom::distance::Closest;
 use crate::clock::Tick;
 
 /// The layer schedule of one simulation.
+///
+/// ```
+/// use weft_sim::layers::LayerSchedule;
+/// let s = LayerSchedule { eta_1: 1e-3, eta_inf: 1e-4, k_1: 10.0, h_1: 1 << 20 };
+/// assert_eq!(s.eta(1), 1e-3);
+/// assert!(s.eta(16) < s.eta(2) && s.eta(16) > s.eta_inf); // nested, above the floor
+/// assert_eq!(s.k(2), 80.0);                                // k_l = k_1 l^3
+/// assert_eq!(s.step(4), (1 << 20) / 8);                    // h_l = h_1 l^(-3/2)
+/// ```
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LayerSchedule {
     /// Outer contact thickness `eta_1` (m).
@@ -132,7 +141,8 @@ pub struct PenaltyImpulse {
     pub energy: f64,
 }
 
-/// The kick of layer `l` (step `h` seconds) on a stencil with closest-point
+/// The kick of a layer with thickness `eta`, stiffness `k` and step `h`
+/// seconds (layer `l`: `eta_l`, `k_l`, `h_l`) on a stencil with closest-point
 /// data `c` (positions at the event) and velocities `v` at the start of the
 /// batch (Jacobi semantics for friction); `w` are inverse masses. `None` when
 /// the stencil is outside the layer (zero kick — it must leave no trace).
@@ -145,20 +155,18 @@ pub struct PenaltyImpulse {
 /// Both parts sum to zero over the stencil (Σ c_j = 0): linear momentum is
 /// conserved; friction does not conserve angular momentum.
 pub fn penalty_kick(
-    schedule: &LayerSchedule,
-    l: u32,
+    eta: f64,
+    k: f64,
     h: f64,
     c: &Closest,
     v: &[DVec3; 4],
     w: &[f64; 4],
     mu: f64,
 ) -> Option<PenaltyImpulse> {
-    let eta = schedule.eta(l);
     let gap = eta - c.d;
     if gap <= 0.0 || gap.is_nan() {
         return None;
     }
-    let k = schedule.k(l);
     let jn = h * k * gap;
     let normal = c.coeff.map(|cj| c.n * (jn * cj));
     let mut friction = [DVec3::ZERO; 4];
@@ -221,9 +229,9 @@ mod tests {
             coeff: [1.0, -0.2, -0.3, -0.5],
         };
         let v = [DVec3::X, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO];
-        assert!(penalty_kick(&s, 1, 1e-3, &c, &v, &[1.0; 4], 0.5).is_none());
+        assert!(penalty_kick(s.eta(1), s.k(1), 1e-3, &c, &v, &[1.0; 4], 0.5).is_none());
         let c = Closest { d: 5e-4, ..c };
-        let k = penalty_kick(&s, 1, 1e-3, &c, &v, &[1.0; 4], 0.5).unwrap();
+        let k = penalty_kick(s.eta(1), s.k(1), 1e-3, &c, &v, &[1.0; 4], 0.5).unwrap();
         let total: DVec3 = k.normal.iter().chain(&k.friction).copied().sum();
         assert!(total.length() < 1e-18);
         assert!(k.normal[0].z > 0.0, "pushes the vertex out along n");

@@ -171,7 +171,7 @@ impl World {
                         )));
                     }
                     let m = materials_list.len() as u16;
-                    materials_list.push(material.clone());
+                    materials_list.push(*material);
                     tri_material.extend(std::iter::repeat_n(Some(m), obj.mesh.num_triangles()));
                     kinematic.extend(std::iter::repeat_n(false, n));
                 }
@@ -438,7 +438,7 @@ fn normalize_motion(m: &Motion, name: &str) -> Result<Motion, SimError> {
             profile,
         } => {
             let len = axis.length();
-            if !(len > 0.0 && len.is_finite()) || !center.is_finite() {
+            if !(len > 0.0 && len.is_finite() && center.is_finite()) {
                 return Err(SimError::Config(format!(
                     "script '{name}': rotation axis must be a non-zero finite vector"
                 )));

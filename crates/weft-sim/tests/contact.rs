@@ -618,7 +618,10 @@ fn sheet_dropped_at_12_m_s_on_a_pinned_sheet_does_not_cross() {
         .to_vec();
     let mut checked_heights = 0usize;
     let sum = run_checked(&mut e, 12, |e, st| {
-        println!("  window {} rollbacks {} depth {} wall {:.2}s kicks {} cand {}", st.window, st.rollbacks, st.max_depth, st.wall_seconds, st.layer_kicks, st.candidates);
+        println!(
+            "  window {} rollbacks {} depth {} wall {:.2}s kicks {} cand {}",
+            st.window, st.rollbacks, st.max_depth, st.wall_seconds, st.layer_kicks, st.candidates
+        );
         for i in up.clone() {
             let p = e.world.x[i];
             if let Some(h) = height_under(&e.world.x, &low_tris, p) {
@@ -1610,7 +1613,7 @@ fn penalty_kick_is_minus_h_times_the_layer_energy_gradient() {
         let d = stencil_closest(*kind, x).d;
         for l in 1..=12u32 {
             let c = stencil_closest(*kind, x);
-            let kick = penalty_kick(&schedule, l, h, &c, &v, &w, 0.0);
+            let kick = penalty_kick(schedule.eta(l), schedule.k(l), h, &c, &v, &w, 0.0);
             if d >= schedule.eta(l) {
                 assert!(kick.is_none(), "{kind:?} l={l}: a kick outside the layer");
                 continue;
@@ -1634,8 +1637,73 @@ fn penalty_kick_is_minus_h_times_the_layer_energy_gradient() {
             eta_inf: 0.0,
             ..schedule.clone()
         };
-        assert!(penalty_kick(&at, 1, h, &c, &v, &w, 0.0).is_none());
+        assert!(penalty_kick(at.eta(1), at.k(1), h, &c, &v, &w, 0.0).is_none());
     }
     println!("penalty kick: {checked} (stencil, layer) pairs checked against finite differences");
     assert!(checked >= 12);
+}
+
+#[test]
+fn zz_probe_stacked() {
+    for dz in [5e-4, 7e-4, 3e-4] {
+        let lower = grid(
+            DVec3::new(0.01, 0.02, 0.3),
+            DVec3::X,
+            DVec3::Y,
+            [0.07, 0.07],
+            [5, 5],
+        );
+        let mut upper = lower.clone();
+        for p in &mut upper.positions {
+            p.z += dz;
+        }
+        let s = two_objects_spec(
+            cloth("lower", lower, DVec3::ZERO),
+            cloth("upper", upper, DVec3::ZERO),
+        );
+        let w = World::build(&s).unwrap();
+        let mut under = 0;
+        for k in all_stencils(&w.triangles, &w.inv_mass) {
+            let x = k.v.map(|i| w.x[i as usize]);
+            if stencil_closest(k.kind, &x).d < ref_distance(k.kind, &x) * 0.999 {
+                under += 1;
+            }
+        }
+        println!("dz {dz}: underestimated {under}");
+        match Engine::new(w, Serial) {
+            Ok(mut e) => {
+                for _ in 0..3 {
+                    match e.step_window() {
+                        Ok(st) => println!(
+                            "rb {} depth {} minsep {:?}",
+                            st.rollbacks, st.max_depth, st.min_separation
+                        ),
+                        Err(er) => {
+                            println!("ERR {er}");
+                            break;
+                        }
+                    }
+                }
+            }
+            Err(er) => println!("refused: {er}"),
+        }
+    }
+}
+
+#[test]
+fn zz_probe_retry_after_budget() {
+    let mut s = bullet_scene(big_triangle(), small_triangle(0.004), 1.0);
+    s.limits.trajectory_budget_bytes = 7 * 32;
+    let mut e = Engine::new(World::build(&s).unwrap(), Serial).unwrap();
+    let x0 = e.world.x.clone();
+    let tau0 = e.world.tau.clone();
+    println!("first: {:?}", e.step_window().err());
+    println!(
+        "x restored {} tau restored {} tau {:?} tick {}",
+        e.world.x == x0,
+        e.world.tau == tau0,
+        e.world.tau,
+        e.world.tick
+    );
+    println!("second: {:?}", e.step_window().err());
 }

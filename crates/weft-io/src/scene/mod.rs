@@ -505,7 +505,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             thickness: file.contact.thickness,
             floor_fraction: file.contact.floor,
             stiffness: file.contact.stiffness,
-            layer1_step_shift: 0,
+            layer1_step_shift: file.contact.layer1_step_shift,
             layers_per_detection: file.contact.layers_per_detection,
             retire_after_windows: file.contact.retire_after_windows,
             friction: file.contact.friction,
@@ -519,6 +519,13 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
         limits: LimitsConfig::default(),
         partitions: file.partitions.max(1),
     };
+    if file.contact.layer1_step_shift > 16 {
+        return Err(invalid(
+            path,
+            "contact.layer1_step_shift",
+            "must be at most 16",
+        ));
+    }
     if !(file.contact.friction >= 0.0 && file.contact.friction.is_finite()) {
         return Err(invalid(
             path,

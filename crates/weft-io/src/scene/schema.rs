@@ -95,6 +95,10 @@ pub struct ContactSection {
     /// Layer-1 stiffness (N/m); absent = automatic.
     #[serde(default)]
     pub stiffness: Option<f64>,
+    /// Layer 1's step is `h_el / 2^layer1_step_shift`; its automatic
+    /// stiffness grows as the square of the inverse step.
+    #[serde(default)]
+    pub layer1_step_shift: u32,
     /// Layers activated per detection.
     #[serde(default = "default_layers")]
     pub layers_per_detection: u32,
@@ -131,6 +135,7 @@ impl Default for ContactSection {
             thickness: default_thickness(),
             floor: default_floor(),
             stiffness: None,
+            layer1_step_shift: 0,
             layers_per_detection: default_layers(),
             friction: 0.0,
             retire_after_windows: default_retire(),
