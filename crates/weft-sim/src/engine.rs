@@ -42,6 +42,10 @@ const NO_CLOSEST: Closest = Closest {
     coeff: [0.0; 4],
 };
 
+/// Passes of one window that may end in a non-finite value (each rolled back
+/// with more layers) before the run stops with [`SimError::NonFinite`].
+const MAX_BLOWN_UP_PASSES: u32 = 3;
+
 /// The state restored on rollback.
 #[derive(Clone, Debug)]
 struct Snapshot {
@@ -50,13 +54,23 @@ struct Snapshot {
     tau: Vec<Tick>,
 }
 
+impl Snapshot {
+    fn restore(&self, w: &mut World) {
+        w.x.copy_from_slice(&self.x);
+        w.v.copy_from_slice(&self.v);
+        w.tau.copy_from_slice(&self.tau);
+    }
+}
+
 /// Counters of one pass over a window.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Debug, Default)]
 struct PassCounts {
     internal_events: u64,
     layer_events: u64,
     layer_kicks: u64,
     min_separation: f64,
+    /// The pass ended early because a value became non-finite.
+    truncated: Option<SimError>,
 }
 
 /// Scratch memory reused across windows.
@@ -190,11 +204,18 @@ impl<E: Executor> Engine<E> {
             tau: self.world.tau.clone(),
         };
         let mut rollbacks = 0u32;
+        let mut blown_up = 0u32;
         let mut confirmed = 0u64;
         let mut stages = StageSeconds::default();
         loop {
             let clock = Instant::now();
-            let counts = self.run_events(t0, t1)?;
+            let mut counts = match self.run_events(t0, t1) {
+                Ok(c) => c,
+                Err(e) => {
+                    snap.restore(&mut self.world);
+                    return Err(e);
+                }
+            };
             stages.events += clock.elapsed().as_secs_f64();
             let clock = Instant::now();
             let candidates = {
@@ -211,6 +232,11 @@ impl<E: Executor> Engine<E> {
             let reported = self.narrow_phase(&candidates);
             stages.narrow += clock.elapsed().as_secs_f64();
             if reported.is_empty() {
+                if let Some(e) = counts.truncated.take() {
+                    // Blew up with no stencil to blame: a real instability.
+                    snap.restore(&mut self.world);
+                    return Err(e);
+                }
                 let clock = Instant::now();
                 let retired = self.commit(&candidates);
                 self.world.tick = t1;
@@ -235,9 +261,17 @@ impl<E: Executor> Engine<E> {
             }
             confirmed += reported.len() as u64;
             // Roll back: restore the state, keep (and extend) the layers.
-            self.world.x.copy_from_slice(&snap.x);
-            self.world.v.copy_from_slice(&snap.v);
-            self.world.tau.copy_from_slice(&snap.tau);
+            snap.restore(&mut self.world);
+            // A pass that blew up is rolled back like any other (its
+            // stencils may simply have had too few layers), but one that
+            // keeps blowing up is a real instability: stop with the error.
+            if let Some(e) = counts.truncated.take() {
+                blown_up += 1;
+                if blown_up >= MAX_BLOWN_UP_PASSES {
+                    snap.restore(&mut self.world);
+                    return Err(e);
+                }
+            }
             let extra = self.world.contact.layers_per_detection;
             for key in &reported {
                 self.world.layers.deepen(*key, extra);
@@ -293,6 +327,7 @@ impl<E: Executor> Engine<E> {
         };
         let mut next: Vec<Tick> = periods.iter().map(|&p| first_at_or_after(p)).collect();
         let mut firing: Vec<u32> = Vec::new();
+        let mut end = t1;
         // by_layer[l - 1]: indices of the stencils with depth ≥ l, in key order.
         let mut by_layer: Vec<Vec<u32>> = vec![Vec::new(); max_depth as usize];
         for (a, &(_, depth)) in active.iter().enumerate() {
@@ -314,16 +349,29 @@ impl<E: Executor> Engine<E> {
                     *nt += periods[c];
                 }
             }
-            self.batch(t, &firing, &active, &by_layer, &layer_consts, &mut counts)?;
+            match self.batch(t, &firing, &active, &by_layer, &layer_consts, &mut counts) {
+                Ok(()) => {}
+                Err(e @ SimError::NonFinite { .. }) => {
+                    // A speculative pass that blew up (typically a stencil
+                    // pushed through too few layers): end the pass at `t`,
+                    // before any non-finite value was written, and let
+                    // detection decide whether more layers fix it.
+                    counts.truncated = Some(e);
+                    end = t;
+                    break;
+                }
+                Err(e) => return Err(e),
+            }
         }
-        // Drift everything to the window end.
+        // Drift everything to the end of the pass (the window end unless the
+        // pass was truncated).
         let w = &mut self.world;
         for i in 0..w.x.len() {
-            let p = Self::pos_at(w, i, t1);
+            let p = Self::pos_at(w, i, end);
             w.x[i] = p;
-            w.tau[i] = t1;
+            w.tau[i] = end;
             self.traj
-                .record(i, t1, p)
+                .record(i, end, p)
                 .map_err(|e| budget_error(w, t0, e))?;
         }
         Ok(counts)

@@ -109,6 +109,12 @@ impl World {
     /// Builds and validates a world. Does not check the initial state for
     /// contact (see [`crate::engine::Engine::new`]).
     pub fn build(spec: &WorldSpec) -> Result<Self, SimError> {
+        if !spec.gravity.is_finite() {
+            return Err(SimError::Config(format!(
+                "gravity {:?} is not finite",
+                spec.gravity.to_array()
+            )));
+        }
         if spec.objects.is_empty() {
             return Err(SimError::Config("the scene has no objects".into()));
         }
@@ -255,8 +261,8 @@ impl World {
                 if !(mass[i] > 0.0) {
                     let place = place_of(&objects, i as u32);
                     return Err(SimError::Config(format!(
-                        "cloth vertex {place} has no mass (it belongs to no triangle); \
-                         remove unreferenced vertices"
+                        "cloth vertex {place} has no mass: it belongs to no triangle, or all \
+                         its triangles have zero rest area; remove it or fix the rest shape"
                     )));
                 }
                 inv_mass[i] = 1.0 / mass[i];

@@ -286,24 +286,28 @@ fn sub_segment(
     true
 }
 
-/// Fixed-plane hull certificate over the whole span of `traj`.
+/// Fixed-plane hull certificate over `[ta, tb]`.
 ///
 /// Each primitive at time `t` is the convex hull of its vertices at `t`, and
-/// each vertex stays in the convex hull of its breakpoints; so if, along a
-/// fixed direction `n` (any vector, taken as exact), every breakpoint of the
-/// first primitive's vertices projects above every breakpoint of the second
-/// primitive's vertices by more than `eta |n|`, then `d > eta` at every instant.
+/// over `[ta, tb]` each vertex stays in the convex hull of its breakpoints from
+/// the last one at or before `ta` to the first one at or after `tb` (exact
+/// stored points: no interpolation error). So if, along a fixed direction `n`
+/// (any vector, taken as exact), every such breakpoint of the first
+/// primitive's vertices projects above every one of the second primitive's
+/// vertices by more than `eta |n|`, then `d > eta` at every instant of
+/// `[ta, tb]`.
 ///
 /// Rounding: with `M` the largest absolute breakpoint coordinate, a computed
 /// projection `fl(n·p)` differs from `n·p` by at most `γ_3 Σ|n_k||p_k| ≤
 /// γ_3 |n|_1 M` (`γ_3 = 3u/(1-3u)`); the computed gap (one more subtraction)
 /// is then within `2 γ_3 |n|_1 M + u |gap|` of the exact gap of the computed
 /// extremes, and `|n|_2` computed is within `(1 + 2u)` of exact. We demand
-/// `gap > eta |n|_2 (1 + 4u) + 4 (2 γ_3 |n|_1 M + u |gap|) + 2^-1000`: four
-/// times the bound, plus an absolute slack for underflow.
+/// `gap > eta |n|_2 (1 + 4u) + MARGIN_C (2 γ_3 |n|_1 M + u |gap|) + 2^-1000`.
 pub(crate) fn fixed_plane_hull(
     kind: StencilKind,
     traj: &[Trajectory<'_>; 4],
+    ta: f64,
+    tb: f64,
     n: DVec3,
     eta: f64,
     max_coord: f64,
@@ -312,15 +316,25 @@ pub(crate) fn fixed_plane_hull(
         StencilKind::VertexFace => 1,
         StencilKind::EdgeEdge => 2,
     };
+    // Breakpoints covering [ta, tb]: from the last at or before ta to the
+    // first at or after tb.
+    let covering = |tr: &Trajectory<'_>| {
+        let k0 = tr.times.partition_point(|&s| s <= ta).saturating_sub(1);
+        let k1 = tr
+            .times
+            .partition_point(|&s| s < tb)
+            .min(tr.times.len() - 1);
+        k0..k1 + 1
+    };
     let mut lo_first = f64::INFINITY;
     for tr in &traj[..split] {
-        for p in tr.points {
+        for p in &tr.points[covering(tr)] {
             lo_first = lo_first.min(n.dot(*p));
         }
     }
     let mut hi_second = f64::NEG_INFINITY;
     for tr in &traj[split..] {
-        for p in tr.points {
+        for p in &tr.points[covering(tr)] {
             hi_second = hi_second.max(n.dot(*p));
         }
     }

@@ -160,7 +160,7 @@ pub struct CcdStats {
     /// intervals certified by the denoised closest direction after the
     /// other two failed.
     pub denoised_certified: u64,
-    /// queries certified at once by the fixed-plane hull test.
+    /// queries and intervals certified by the fixed-plane hull test.
     pub hull_certified: u64,
 }
 
@@ -457,7 +457,15 @@ impl<'a> Query<'a> {
         let c = stencil_closest(self.kind, &self.positions(mid));
         if c.d.is_finite()
             && c.d > self.eta
-            && certificate::fixed_plane_hull(self.kind, self.traj, c.n, self.eta, self.max_coord)
+            && certificate::fixed_plane_hull(
+                self.kind,
+                self.traj,
+                self.t0,
+                self.t1,
+                c.n,
+                self.eta,
+                self.max_coord,
+            )
         {
             stats.hull_certified += 1;
             return false;
@@ -488,6 +496,22 @@ impl<'a> Query<'a> {
             budget -= 1;
             stats.intervals += 1;
             let (na, nb) = (node.na, node.nb);
+            // Cheap first: a fixed plane over the breakpoints covering the
+            // interval, normal = the closest direction at either end.
+            if [na.closest, nb.closest].iter().any(|&n| {
+                certificate::fixed_plane_hull(
+                    self.kind,
+                    self.traj,
+                    node.ta,
+                    node.tb,
+                    n,
+                    self.eta,
+                    self.max_coord,
+                )
+            }) {
+                stats.hull_certified += 1;
+                continue;
+            }
             if certificate::certify(
                 self.kind, self.traj, node.ta, node.tb, na.closest, nb.closest, self.eta,
             ) {

@@ -18,8 +18,11 @@
 //! vs `[p0, p1]`. This covers parallel, collinear and zero-length edges.
 //!
 //! Nearly parallel edges (`|m|^2 <= 1e-8 |e|^2 |f|^2`, an angle below about
-//! 1e-4 rad) have a badly conditioned `m`; there the interior candidate is also
-//! compared with the endpoint candidates and the smaller distance wins.
+//! 1e-4 rad) have a badly conditioned `m`, `s` and `t`; there the interior
+//! candidate is the distance between the points at `s, t` (a realizable pair,
+//! never below the true minimum) and it is compared with the endpoint
+//! candidates: the smaller wins. Every candidate is the distance of an actual
+//! pair of points, so the result never underestimates.
 
 use super::{fallback_normal, normal_along, point_segment, Closest};
 use weft_core::DVec3;
@@ -62,7 +65,28 @@ pub fn edge_edge(p0: DVec3, p1: DVec3, q0: DVec3, q1: DVec3) -> Closest {
             if !nearly_parallel {
                 return cand;
             }
-            interior = Some(cand);
+            // Nearly parallel: `s, t` are ill-conditioned and the plane
+            // formula is the distance of the *lines*, which can be far below
+            // that of the segments. Keep only what is realizable: the distance
+            // between the two points at `s, t` (a pair of points of the
+            // segments, so never below the true minimum).
+            // One alternating projection from there (each step can only
+            // lower the distance of the pair) sharpens crossings at tiny angles.
+            let t2 = ((p0 + e * s - q0).dot(f) / ff).clamp(0.0, 1.0);
+            let s2 = ((q0 + f * t2 - p0).dot(e) / ee).clamp(0.0, 1.0);
+            let pair = |s: f64, t: f64| (p0 + e * s) - (q0 + f * t);
+            let (s, t) = if pair(s2, t2).length() < pair(s, t).length() {
+                (s2, t2)
+            } else {
+                (s, t)
+            };
+            let diff = pair(s, t);
+            let d = diff.length();
+            interior = Some(Closest {
+                d,
+                n: normal_along(diff, d).unwrap_or(cand.n),
+                coeff: [1.0 - s, s, -(1.0 - t), -t],
+            });
         }
     }
 
