@@ -12,7 +12,7 @@ use glam::DVec3;
 use weft_core::{Topology, NONE};
 
 use crate::executor::Executor;
-use crate::materials::{self, HingeElement, Material, MaterialError, StretchElement};
+use crate::materials::{self, ElasticModel, HingeElement, Material, MaterialError, StretchElement};
 
 /// One partition's share of the internal stencils.
 #[derive(Clone, Debug, PartialEq)]
@@ -262,17 +262,20 @@ impl InternalForces {
         e
     }
 
+    /// A borrowed view of all elements, for assembled quantities.
+    pub fn model(&self) -> ElasticModel<'_> {
+        ElasticModel {
+            stretch: &self.stretch,
+            stretch_material: &self.stretch_material,
+            hinges: &self.hinges,
+            hinge_material: &self.hinge_material,
+            materials: &self.materials,
+        }
+    }
+
     /// Largest angular frequency of the assembled rest system.
     pub fn max_frequency(&self, rest: &[DVec3], mass: &[f64]) -> f64 {
-        materials::max_frequency(
-            rest,
-            mass,
-            &self.stretch,
-            &self.stretch_material,
-            &self.hinges,
-            &self.hinge_material,
-            &self.materials,
-        )
+        self.model().max_frequency(rest, mass)
     }
 
     /// Rejects damping above its explicit stability limit at step `h`
@@ -287,15 +290,7 @@ impl InternalForces {
         if !self.damped {
             return Ok(());
         }
-        let gamma = materials::max_damping_rate(
-            rest,
-            mass,
-            &self.stretch,
-            &self.stretch_material,
-            &self.hinges,
-            &self.hinge_material,
-            &self.materials,
-        );
+        let gamma = self.model().max_damping_rate(rest, mass);
         materials::check_damping(h, omega_max, gamma)
     }
 }

@@ -3,7 +3,7 @@
 
 use glam::DVec3;
 use weft_geom::shapes::grid;
-use weft_sim::materials::{ElasticModel, Material};
+use weft_sim::materials::Material;
 use weft_sim::{
     ContactConfig, Engine, LimitsConfig, ObjectKind, ObjectSpec, Serial, TimeConfig, World,
     WorldSpec,
@@ -73,13 +73,7 @@ fn event_loop_without_contact_is_leapfrog_bitwise() {
 
     // Reference leapfrog on a copy of the initial state.
     let w0 = engine.world.clone();
-    let model = ElasticModel {
-        stretch: &w0.internal.stretch,
-        stretch_material: &w0.internal.stretch_material,
-        hinges: &w0.internal.hinges,
-        hinge_material: &w0.internal.hinge_material,
-        materials: &w0.internal.materials,
-    };
+    let model = w0.internal.model();
     let h = w0.lattice.h_el();
     let (mut x, mut v) = (w0.x.clone(), w0.v.clone());
     let windows = 3;

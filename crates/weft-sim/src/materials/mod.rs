@@ -48,10 +48,7 @@ pub mod stretch;
 pub use assembly::ElasticModel;
 pub use bend::{dihedral_angle, HingeElement};
 pub use mass::{gravity_gradient, lumped_masses};
-pub use step::{
-    check_damping, damping_step_limit, gershgorin_bound, max_damping_rate, max_frequency,
-    stable_step,
-};
+pub use step::{check_damping, damping_step_limit, stable_step};
 pub use stretch::StretchElement;
 
 use serde::{Deserialize, Serialize};

@@ -2,11 +2,11 @@
 //!
 //! `omega_max² = λ_max(M^-1 K)` with `K` the Hessian of the assembled stretch + bend
 //! energy at the rest shape. It equals `λ_max` of the symmetric `D K D`,
-//! `D = M^-1/2`, which [`max_frequency`] finds by Lanczos iteration (three vectors,
+//! `D = M^-1/2`, which [`ElasticModel::max_frequency`] finds by Lanczos iteration (three vectors,
 //! no reorthogonalisation; Ritz values approach `λ_max` from below and converge much
 //! faster than plain power iteration for the clustered top of a cloth spectrum) with
 //! Hessian-vector products by central differences of the assembled gradient.
-//! [`gershgorin_bound`] gives the rigorous upper bound
+//! [`ElasticModel::gershgorin_bound`] gives the rigorous upper bound
 //! `sqrt(max_row Σ_e Σ_col |K^e| d_i d_j)` from finite-difference element Hessians
 //! (typically 5–15 % above `omega_max` on cloth grids); it is the safety check: a
 //! Lanczos result that is not finite or lies above it is replaced by it.
@@ -22,13 +22,13 @@
 //! `M^-1 C = γ` the amplification matrix has determinant `1 - hγ` and trace
 //! `2 - h²ω² - hγ`; it is stable iff `h γ + h² ω² / 2 <= 2`. [`damping_step_limit`]
 //! solves this for `h` with `ω = omega_max` and `γ = gamma_max = λ_max(M^-1 C)`
-//! ([`max_damping_rate`], Lanczos on the exactly linear damping operator). This is
+//! ([`ElasticModel::max_damping_rate`], Lanczos on the exactly linear damping operator). This is
 //! exact when `C = alpha K` (`bend_damping = stretch_damping · k_b`, where both
 //! operators share their modes); otherwise it pairs the stiffest mode with the most
 //! damped one, which is the worst case whenever those coincide (the usual case:
 //! both are the shortest-wavelength membrane modes).
 
-use super::{ElasticModel, HingeElement, Material, MaterialError, StretchElement};
+use super::{ElasticModel, MaterialError};
 use glam::DVec3;
 
 /// Most Lanczos steps.
@@ -104,79 +104,18 @@ fn length_scale(rest: &[DVec3], model: &ElasticModel) -> f64 {
     s.chain(h).fold(f64::INFINITY, f64::min)
 }
 
-/// `omega_max = sqrt(λ_max(M^-1 K))` (rad/s) of the assembled rest system of the
-/// given elements (material ids index `materials`); 0 without elements. Use with
-/// [`stable_step`]. Same as [`ElasticModel::max_frequency`].
-pub fn max_frequency(
-    rest: &[DVec3],
-    masses: &[f64],
-    stretch: &[StretchElement],
-    stretch_material: &[u16],
-    hinges: &[HingeElement],
-    hinge_material: &[u16],
-    materials: &[Material],
-) -> f64 {
-    let model = ElasticModel {
-        stretch,
-        stretch_material,
-        hinges,
-        hinge_material,
-        materials,
-    };
-    model_max_frequency(rest, masses, &model)
-}
-
-/// `gamma_max = λ_max(M^-1 C)` (1/s) of the damping operator at the rest shape,
-/// for [`damping_step_limit`] / [`check_damping`]. Arguments as [`max_frequency`].
-pub fn max_damping_rate(
-    rest: &[DVec3],
-    masses: &[f64],
-    stretch: &[StretchElement],
-    stretch_material: &[u16],
-    hinges: &[HingeElement],
-    hinge_material: &[u16],
-    materials: &[Material],
-) -> f64 {
-    let model = ElasticModel {
-        stretch,
-        stretch_material,
-        hinges,
-        hinge_material,
-        materials,
-    };
-    model_max_damping_rate(rest, masses, &model)
-}
-
-/// Gershgorin upper bound of `omega_max` (rad/s). Arguments as [`max_frequency`].
-pub fn gershgorin_bound(
-    rest: &[DVec3],
-    masses: &[f64],
-    stretch: &[StretchElement],
-    stretch_material: &[u16],
-    hinges: &[HingeElement],
-    hinge_material: &[u16],
-    materials: &[Material],
-) -> f64 {
-    let model = ElasticModel {
-        stretch,
-        stretch_material,
-        hinges,
-        hinge_material,
-        materials,
-    };
-    model_gershgorin_bound(rest, masses, &model)
-}
-
 impl ElasticModel<'_> {
-    /// See [`max_frequency`].
+    /// `omega_max = sqrt(λ_max(M^-1 K))` (rad/s) of the assembled rest system
+    /// (0 without elements). Use with [`stable_step`].
     pub fn max_frequency(&self, rest: &[DVec3], masses: &[f64]) -> f64 {
         model_max_frequency(rest, masses, self)
     }
-    /// See [`max_damping_rate`].
+    /// `gamma_max = λ_max(M^-1 C)` (1/s) of the damping operator at the rest
+    /// shape, for [`damping_step_limit`] / [`check_damping`].
     pub fn max_damping_rate(&self, rest: &[DVec3], masses: &[f64]) -> f64 {
         model_max_damping_rate(rest, masses, self)
     }
-    /// See [`gershgorin_bound`].
+    /// Gershgorin upper bound of `omega_max` (rad/s).
     pub fn gershgorin_bound(&self, rest: &[DVec3], masses: &[f64]) -> f64 {
         model_gershgorin_bound(rest, masses, self)
     }
