@@ -4,7 +4,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use weft_cli::commands::run::simulate;
+use weft_core::StencilKey;
+use weft_geom::distance::stencil_closest;
+use weft_geom::intersections::mesh_self_intersections;
 use weft_io::scene::load_scene;
+use weft_sim::{Engine, Serial, World};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -213,5 +217,74 @@ fn intersecting_initial_state_is_refused() {
     assert!(
         err.contains("cloth #") && err.contains("sphere #"),
         "names the primitives: {err}"
+    );
+}
+
+/// `crumple` never lets anything pass: at every committed window end, by brute
+/// force over every stencil of the world, each stencil is at least
+/// `eta_(depth+1)` apart (what the narrow phase certified), no stencil is
+/// below the floor, and no two triangles intersect (exact test).
+#[test]
+fn crumple_keeps_every_stencil_outside_its_next_layer() {
+    let s = load_scene(&scene("crumple.toml"), &["time.end=0.2".into()]).unwrap();
+    let mut e = Engine::new(World::build(&s.world).unwrap(), Serial).unwrap();
+    let (tris, inv_mass) = (e.world.triangles.clone(), e.world.inv_mass.clone());
+    let edges = e.world.topology.edges.clone();
+    let dynamic = |k: &StencilKey| k.v.iter().any(|&i| inv_mass[i as usize] > 0.0);
+    let mut stencils = Vec::new();
+    for v in 0..e.world.num_vertices() as u32 {
+        for t in &tris {
+            let k = StencilKey::vertex_face(v, *t);
+            if !k.shares_vertex() && dynamic(&k) {
+                stencils.push(k);
+            }
+        }
+    }
+    for (a, ea) in edges.iter().enumerate() {
+        for eb in &edges[a + 1..] {
+            let k = StencilKey::edge_edge(*ea, *eb);
+            if !k.shares_vertex() && dynamic(&k) {
+                stencils.push(k);
+            }
+        }
+    }
+    let (mut rollbacks, mut depth, mut closest) = (0, 0, f64::INFINITY);
+    while e.world.time() < s.end_time {
+        let st = e.step_window().unwrap();
+        rollbacks += st.rollbacks;
+        depth = depth.max(st.max_depth);
+        let w = &e.world;
+        // Rounding slack of the distance itself (coordinates below ~1 m).
+        let slack = 1e-12;
+        for k in &stencils {
+            let d = stencil_closest(k.kind, &k.v.map(|i| w.x[i as usize])).d;
+            closest = closest.min(d);
+            let next = w.schedule.eta(w.layers.depth(k) + 1);
+            assert!(
+                d >= next - slack && d > w.schedule.eta_inf,
+                "window {}: stencil {k:?} at {d:e}, inside eta_(depth+1) = {next:e}",
+                st.window
+            );
+        }
+        let hits: Vec<_> = mesh_self_intersections(&w.x, &tris)
+            .into_iter()
+            .filter(|&(a, b)| {
+                [a, b]
+                    .iter()
+                    .any(|&f| tris[f as usize].iter().any(|&i| inv_mass[i as usize] > 0.0))
+            })
+            .collect();
+        assert!(
+            hits.is_empty(),
+            "window {}: intersecting triangles {hits:?}",
+            st.window
+        );
+    }
+    println!(
+        "crumple to 0.2 s: {rollbacks} rollbacks, depth {depth}, closest stencil {closest:e} m"
+    );
+    assert!(
+        rollbacks >= 5 && depth >= 5,
+        "too little contact to mean anything"
     );
 }
