@@ -437,6 +437,9 @@ impl<E: Executor> Engine<E> {
                     *cached = (t + 1, c);
                     c
                 };
+                if !(c.d < eta_l) {
+                    continue; // outside the layer: a zero kick (NaN too)
+                }
                 let v = key.v.map(|i| w.v[i as usize]);
                 let inv = key.v.map(|i| w.inv_mass[i as usize]);
                 if let Some(k) = penalty_kick(eta_l, k_l, h_l, &c, &v, &inv, mu) {
