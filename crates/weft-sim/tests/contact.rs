@@ -33,35 +33,9 @@ use weft_sim::{
     ContactConfig, Engine, LimitsConfig, ObjectKind, ObjectSpec, PinSpec, Serial, SimError,
     TimeConfig, WindowStats, World, WorldSpec,
 };
-use weft_testkit::assert_gradient;
+use weft_testkit::{assert_gradient, Rng};
 
 // ---------------------------------------------------------------- helpers
-
-/// Deterministic splitmix64 generator.
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
-    }
-    fn vec(&mut self, r: f64) -> DVec3 {
-        DVec3::new(
-            self.uniform(-r, r),
-            self.uniform(-r, r),
-            self.uniform(-r, r),
-        )
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next_u64() % n
-    }
-}
 
 /// A cotton-like material with the plate-calibrated hinge stiffness.
 fn cloth_material() -> Material {

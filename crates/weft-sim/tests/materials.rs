@@ -9,36 +9,14 @@ use weft_sim::materials::{
     check_damping, damping_step_limit, dihedral_angle, lumped_masses, stable_step, ElasticModel,
     HingeElement, Material, MaterialError, StretchElement,
 };
-use weft_testkit::{assert_gradient, check_gradient};
+use weft_testkit::{assert_gradient, check_gradient, Rng};
 
 // ---------------------------------------------------------------- helpers
 
-/// Deterministic splitmix64 generator.
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [lo, hi).
-    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
-    }
-    fn vec(&mut self, r: f64) -> DVec3 {
-        DVec3::new(
-            self.uniform(-r, r),
-            self.uniform(-r, r),
-            self.uniform(-r, r),
-        )
-    }
-    fn rotation(&mut self) -> DQuat {
-        let axis = self.vec(1.0).normalize();
-        DQuat::from_axis_angle(axis, self.uniform(-3.0, 3.0))
-    }
+/// A random rotation.
+fn random_rotation(rng: &mut Rng) -> DQuat {
+    let axis = rng.vec(1.0).normalize();
+    DQuat::from_axis_angle(axis, rng.uniform(-3.0, 3.0))
 }
 
 /// A cotton-like material with the plate-calibrated hinge stiffness.
@@ -165,7 +143,7 @@ fn stretch_gradient_matches_finite_differences() {
             rng.uniform(0.5, 1.6),
             rng.uniform(0.5, 1.6),
         );
-        let q = rng.rotation();
+        let q = random_rotation(&mut rng);
         let shift = rng.vec(1.0);
         let x: Vec<DVec3> = rest
             .iter()
@@ -291,7 +269,7 @@ fn bend_gradient_matches_finite_differences() {
         (-3.13, 3.12),
         (2.0, -2.5),
     ] {
-        let q = rng.rotation();
+        let q = random_rotation(&mut rng);
         let x = hinge_at(a).map(|p| q * p + rng.vec(1e-5) * 1e-3);
         check_hinge_gradient(hinge_at(rest_a), x, k_b, 1e-5);
     }
@@ -345,7 +323,7 @@ fn energies_are_rigid_invariant_and_gradients_conserve_momentum() {
     for _ in 0..100 {
         let rest: Vec<DVec3> = (0..4).map(|_| rng.vec(0.01)).collect();
         let x: Vec<DVec3> = rest.iter().map(|p| *p * 1.1 + rng.vec(0.002)).collect();
-        let q = rng.rotation();
+        let q = random_rotation(&mut rng);
         let t = rng.vec(10.0);
         let y: Vec<DVec3> = x.iter().map(|p| q * *p + t).collect();
         if let Ok(s) = StretchElement::new([0, 1, 2], tri(&rest)) {

@@ -1,7 +1,8 @@
 //! # weft-testkit — shared test helpers (not published)
 //!
 //! One finite-difference gradient checker for every energy in weft, so that all
-//! gradient tests measure the same thing the same way.
+//! gradient tests measure the same thing the same way, and one small seeded
+//! random generator for randomized tests.
 
 use glam::DVec3;
 
@@ -72,6 +73,41 @@ pub fn assert_gradient(
         r.worst.0,
         r.worst.1
     );
+}
+
+/// Deterministic splitmix64 generator for randomized tests (seeded, so a
+/// failing case reproduces).
+#[derive(Clone, Debug)]
+pub struct Rng(pub u64);
+
+impl Rng {
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in `[lo, hi)`.
+    pub fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
+    }
+
+    /// A vector with components uniform in `[-r, r)`.
+    pub fn vec(&mut self, r: f64) -> DVec3 {
+        DVec3::new(
+            self.uniform(-r, r),
+            self.uniform(-r, r),
+            self.uniform(-r, r),
+        )
+    }
+
+    /// Uniform in `0..n`.
+    pub fn below(&mut self, n: u64) -> u64 {
+        self.next_u64() % n
+    }
 }
 
 #[cfg(test)]
