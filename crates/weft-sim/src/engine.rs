@@ -35,12 +35,47 @@ use crate::layers::penalty_kick;
 use crate::trajectory::Trajectories;
 use crate::world::World;
 
-/// Placeholder of the closest-point cache (never read: its stamp is 0).
-const NO_CLOSEST: Closest = Closest {
-    d: f64::INFINITY,
-    n: DVec3::Z,
-    coeff: [0.0; 4],
+/// What a batch knows of one active stencil's distance.
+#[derive(Clone, Copy, Debug)]
+struct StencilCache {
+    /// `tick + 1` of the batch the entry belongs to (0: none).
+    stamp: Tick,
+    /// The closest-point data at that tick, if computed.
+    closest: Option<Closest>,
+    /// A lower bound of the distance at that tick.
+    lower: f64,
+    /// The last exact evaluation in this pass: distance and vertex positions.
+    anchor: Option<(f64, [DVec3; 4])>,
+}
+
+const EMPTY_CACHE: StencilCache = StencilCache {
+    stamp: 0,
+    closest: None,
+    lower: f64::NEG_INFINITY,
+    anchor: None,
 };
+
+/// Lower bound of a stencil's distance at positions `x`, given its exact
+/// distance `d0` at earlier positions `x0` of the same pass.
+///
+/// Each point of a primitive is a fixed convex combination of its vertices, so
+/// it moved by at most the largest of their displacements; the closest pair at
+/// `x` was therefore at least `d0 - move_a - move_b` apart. The subtracted
+/// slack covers the rounding of `d0` and of the displacement norms (a few ulps
+/// of the coordinates, bounded generously by `2^-40 (1 + max |coordinate|)`).
+fn distance_lower_bound(kind: StencilKind, d0: f64, x0: &[DVec3; 4], x: &[DVec3; 4]) -> f64 {
+    let split = match kind {
+        StencilKind::VertexFace => 1,
+        StencilKind::EdgeEdge => 2,
+    };
+    let moved =
+        |r: std::ops::Range<usize>| r.map(|j| (x[j] - x0[j]).length()).fold(0.0f64, f64::max);
+    let scale = x
+        .iter()
+        .chain(x0)
+        .fold(0.0f64, |m, p| m.max(p.abs().max_element()));
+    d0 - moved(0..split) - moved(split..4) - (1.0 + scale) * f64::powi(2.0, -40)
+}
 
 /// Passes of one window that may end in a non-finite value (each rolled back
 /// with more layers) before the run stops with [`SimError::NonFinite`].
@@ -85,7 +120,7 @@ struct Workspace {
     touched: Vec<u32>,
     is_touched: Vec<bool>,
     /// Per active stencil: (tick + 1 of the batch it was computed in, data).
-    closest: Vec<(Tick, Closest)>,
+    closest: Vec<StencilCache>,
     bounds: Vec<usize>,
     broad: BroadPhase,
 }
@@ -336,7 +371,7 @@ impl<E: Executor> Engine<E> {
             }
         }
         self.ws.closest.clear();
-        self.ws.closest.resize(active.len(), (0, NO_CLOSEST));
+        self.ws.closest.resize(active.len(), EMPTY_CACHE);
         loop {
             let t = next.iter().copied().min().unwrap_or(t1);
             if t >= t1 {
@@ -421,10 +456,13 @@ impl<E: Executor> Engine<E> {
             for &a in &by_layer[l as usize - 1] {
                 let key = &active[a as usize].0;
                 counts.layer_events += 1;
-                let cached = &mut ws.closest[a as usize];
-                let c = if cached.0 == t + 1 {
-                    cached.1
-                } else {
+                let cache = &mut ws.closest[a as usize];
+                if cache.stamp != t + 1 {
+                    cache.stamp = t + 1;
+                    cache.closest = None;
+                    cache.lower = f64::NEG_INFINITY;
+                }
+                if cache.closest.is_none() {
                     let x = key.v.map(|i| {
                         if internal {
                             ws.xt[i as usize]
@@ -432,11 +470,22 @@ impl<E: Executor> Engine<E> {
                             Self::pos_at(w, i as usize, t)
                         }
                     });
+                    if let Some((d0, x0)) = &cache.anchor {
+                        if cache.lower == f64::NEG_INFINITY {
+                            cache.lower = distance_lower_bound(key.kind, *d0, x0, &x);
+                        }
+                    }
+                    // Certainly outside this layer: its kick is zero, so
+                    // skipping the evaluation leaves the same bits.
+                    if cache.lower >= eta_l {
+                        continue;
+                    }
                     let c = stencil_closest(key.kind, &x);
                     counts.min_separation = counts.min_separation.min(c.d);
-                    *cached = (t + 1, c);
-                    c
-                };
+                    cache.closest = Some(c);
+                    cache.anchor = Some((c.d, x));
+                }
+                let c = cache.closest.expect("computed above");
                 if !(c.d < eta_l) {
                     continue; // outside the layer: a zero kick (NaN too)
                 }
