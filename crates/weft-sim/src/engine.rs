@@ -303,8 +303,7 @@ impl<E: Executor> Engine<E> {
             if let Some(e) = counts.truncated.take() {
                 blown_up += 1;
                 if blown_up >= MAX_BLOWN_UP_PASSES {
-                    snap.restore(&mut self.world);
-                    return Err(e);
+                    return Err(e); // the snapshot is already restored
                 }
             }
             let extra = self.world.contact.layers_per_detection;
