@@ -27,6 +27,8 @@ pub enum Command {
     CcdBench(commands::ccd_bench::CcdBenchArgs),
     /// Report intersecting triangles in frame files.
     Check(commands::check::CheckArgs),
+    /// Scene statistics: sizes, masses, initial strain, steps, memory.
+    Info(commands::info::InfoArgs),
 }
 
 /// Parses `args` (program name first) and runs the command.
@@ -50,6 +52,7 @@ where
         Command::Run(a) => commands::run::run(a),
         Command::CcdBench(a) => commands::ccd_bench::run(a),
         Command::Check(a) => commands::check::run(a),
+        Command::Info(a) => commands::info::run(a),
     };
     match result {
         Ok(code) => code,

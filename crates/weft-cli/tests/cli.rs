@@ -288,3 +288,40 @@ fn crumple_keeps_every_stencil_outside_its_next_layer() {
         "too little contact to mean anything"
     );
 }
+
+/// `weft info` builds the scene and reports its figures without simulating.
+#[test]
+fn info_reports_scene_figures() {
+    let o = weft(&["info", scene("crumple.toml").to_str().unwrap(), "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j = last_json(&o.stdout);
+    assert_eq!(j["vertices"], 584, "{j}");
+    assert_eq!(j["triangles"], 1070, "{j}");
+    assert_eq!(j["objects"][0]["vertices"], 576, "{j}");
+    // 0.5 m × 0.5 m at 0.2 kg/m².
+    let mass = j["objects"][0]["mass"].as_f64().unwrap();
+    assert!((mass - 0.05).abs() < 1e-12, "cloth mass {mass}");
+    // The start shape is the wave A sin(3 pi s) sin(2 pi t) (A = 3 cm, side
+    // L = 0.5 m) over a flat rest shape: the steepest slope 3 pi A / L gives a
+    // Green strain of about slope^2 / 2 (the mesh samples it slightly lower).
+    let strain = j["max_initial_strain"].as_f64().unwrap();
+    let slope = 3.0 * std::f64::consts::PI * 0.03 / 0.5;
+    let expected = 0.5 * slope * slope;
+    assert!(
+        strain < expected && strain > 0.95 * expected,
+        "initial strain {strain}, continuum {expected}"
+    );
+    assert!(j["internal_step"].as_f64().unwrap() > 0.0);
+    let text = weft(&[
+        "info",
+        scene("drape.toml").to_str().unwrap(),
+        "--set",
+        "size=400",
+    ]);
+    assert!(text.status.success());
+    let out = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        out.contains("cloth") && out.contains("sphere") && out.contains("internal step"),
+        "{out}"
+    );
+}

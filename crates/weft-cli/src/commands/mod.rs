@@ -2,4 +2,5 @@
 
 pub mod ccd_bench;
 pub mod check;
+pub mod info;
 pub mod run;
