@@ -19,16 +19,7 @@ fn main() {
     for (k, p) in start.positions.iter_mut().enumerate() {
         p.y = 0.01 * ((k % n) as f64 * 0.3).sin() * ((k / n) as f64 * 0.2).cos();
     }
-    let mut material = Material {
-        area_density: 0.2,
-        youngs_modulus: 1e5,
-        poisson_ratio: 0.3,
-        thickness: 1e-3,
-        bending_stiffness: 0.0,
-        stretch_damping: 0.0,
-        bend_damping: 0.0,
-    };
-    material.bending_stiffness = material.default_bending_stiffness();
+    let material = Material::plate(0.2, 1e5, 0.3, 1e-3);
     let spec = WorldSpec {
         objects: vec![ObjectSpec {
             name: "cloth".into(),

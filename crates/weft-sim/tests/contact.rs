@@ -39,17 +39,7 @@ use weft_testkit::{assert_gradient, Rng};
 
 /// A cotton-like material with the plate-calibrated hinge stiffness.
 fn cloth_material() -> Material {
-    let mut m = Material {
-        area_density: 0.15,
-        youngs_modulus: 2.0e5,
-        poisson_ratio: 0.3,
-        thickness: 4.0e-4,
-        bending_stiffness: 0.0,
-        stretch_damping: 0.0,
-        bend_damping: 0.0,
-    };
-    m.bending_stiffness = m.default_bending_stiffness();
-    m
+    Material::plate(0.15, 2.0e5, 0.3, 4.0e-4)
 }
 
 fn cloth(name: &str, mesh: TriMesh, velocity: DVec3) -> ObjectSpec {

@@ -10,17 +10,7 @@ use weft_sim::{
 };
 
 fn material() -> Material {
-    let mut m = Material {
-        area_density: 0.2,
-        youngs_modulus: 1e5,
-        poisson_ratio: 0.3,
-        thickness: 1e-3,
-        bending_stiffness: 0.0,
-        stretch_damping: 0.0,
-        bend_damping: 0.0,
-    };
-    m.bending_stiffness = m.default_bending_stiffness();
-    m
+    Material::plate(0.2, 1e5, 0.3, 1e-3)
 }
 
 fn spec(objects: Vec<ObjectSpec>, gravity: DVec3, steps_per_window: u64, beta: f64) -> WorldSpec {

@@ -21,17 +21,7 @@ fn random_rotation(rng: &mut Rng) -> DQuat {
 
 /// A cotton-like material with the plate-calibrated hinge stiffness.
 fn cloth() -> Material {
-    let mut m = Material {
-        area_density: 0.15,
-        youngs_modulus: 2.0e6,
-        poisson_ratio: 0.3,
-        thickness: 4.0e-4,
-        bending_stiffness: 0.0,
-        stretch_damping: 0.0,
-        bend_damping: 0.0,
-    };
-    m.bending_stiffness = m.default_bending_stiffness();
-    m
+    Material::plate(0.15, 2.0e6, 0.3, 4.0e-4)
 }
 
 fn tri(x: &[DVec3]) -> [DVec3; 3] {

@@ -480,16 +480,7 @@ fn slide(theta: f64, mu: f64, settle: f64, span: f64) -> SlideResult {
         [5, 5],
     );
     patch.positions.iter_mut().for_each(|p| *p = tilt(*p));
-    let mut material = Material {
-        area_density: 0.15,
-        youngs_modulus: 1.0e5,
-        poisson_ratio: 0.3,
-        thickness: 4.0e-4,
-        bending_stiffness: 0.0,
-        stretch_damping: 0.0,
-        bend_damping: 0.0,
-    };
-    material.bending_stiffness = material.default_bending_stiffness();
+    let material = Material::plate(0.15, 1.0e5, 0.3, 4.0e-4);
     let contact = ContactConfig {
         thickness: eta,
         friction: mu,

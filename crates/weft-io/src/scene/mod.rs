@@ -382,18 +382,13 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             .map(|p| v3(c.velocity) + spin.cross(*p - v3(c.spin_center)))
             .collect();
         let m = &c.material;
-        let mut material = Material {
-            area_density: m.density,
-            youngs_modulus: m.youngs_modulus,
-            poisson_ratio: m.poisson_ratio,
-            thickness: m.thickness,
-            bending_stiffness: 0.0,
-            stretch_damping: m.stretch_damping,
-            bend_damping: m.bend_damping,
-        };
-        material.bending_stiffness = m
-            .bending_stiffness
-            .unwrap_or_else(|| material.default_bending_stiffness());
+        let mut material =
+            Material::plate(m.density, m.youngs_modulus, m.poisson_ratio, m.thickness);
+        if let Some(k_b) = m.bending_stiffness {
+            material.bending_stiffness = k_b;
+        }
+        material.stretch_damping = m.stretch_damping;
+        material.bend_damping = m.bend_damping;
         objects.push(ObjectSpec {
             name: c.name.clone(),
             mesh,

@@ -130,6 +130,27 @@ pub struct Material {
 }
 
 impl Material {
+    /// An undamped material with the plate-calibrated hinge stiffness
+    /// `k_b = D / 6` ([`Material::default_bending_stiffness`]).
+    pub fn plate(
+        area_density: f64,
+        youngs_modulus: f64,
+        poisson_ratio: f64,
+        thickness: f64,
+    ) -> Self {
+        let mut m = Self {
+            area_density,
+            youngs_modulus,
+            poisson_ratio,
+            thickness,
+            bending_stiffness: 0.0,
+            stretch_damping: 0.0,
+            bend_damping: 0.0,
+        };
+        m.bending_stiffness = m.default_bending_stiffness();
+        m
+    }
+
     /// Checks every parameter; the error names the first bad one.
     pub fn validate(&self) -> Result<(), MaterialError> {
         let bad = |parameter, value, requirement| {
