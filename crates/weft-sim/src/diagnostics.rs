@@ -3,6 +3,9 @@
 use serde::{Deserialize, Serialize};
 
 /// What happened in one committed window (one line of the stats file).
+///
+/// The serialized form holds only what the simulation determines, so a resumed
+/// run writes the same bytes; the wall-clock fields go to [`WindowTiming`].
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct WindowStats {
     /// Index of the window (0-based).
@@ -44,6 +47,29 @@ pub struct WindowStats {
     pub contact_energy: f64,
     pub linear_momentum: [f64; 3],
     pub angular_momentum: [f64; 3],
+    /// Wall-clock seconds spent on the window (all passes).
+    #[serde(skip)]
+    pub wall_seconds: f64,
+    /// Wall-clock seconds per stage, summed over all passes.
+    #[serde(skip)]
+    pub stage_seconds: StageSeconds,
+}
+
+impl WindowStats {
+    /// The wall-clock part of the stats.
+    pub fn timing(&self) -> WindowTiming {
+        WindowTiming {
+            window: self.window,
+            wall_seconds: self.wall_seconds,
+            stage_seconds: self.stage_seconds,
+        }
+    }
+}
+
+/// Wall-clock time of one committed window (one line of the timing file).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct WindowTiming {
+    pub window: u64,
     /// Wall-clock seconds spent on the window (all passes).
     pub wall_seconds: f64,
     /// Wall-clock seconds per stage, summed over all passes.

@@ -35,7 +35,7 @@ pub mod trajectory;
 pub mod world;
 
 pub use config::{ContactConfig, LimitsConfig, TimeConfig};
-pub use diagnostics::WindowStats;
+pub use diagnostics::{WindowStats, WindowTiming};
 pub use engine::{Engine, RunTotals};
 pub use error::SimError;
 pub use executor::{Executor, Serial};

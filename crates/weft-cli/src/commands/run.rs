@@ -5,7 +5,10 @@
 //!   per-vertex velocities in PLY. Frame k is the committed state at the first
 //!   window boundary at or after `k / frame_rate` (its time is in `frames.jsonl`);
 //!   frames come only from committed windows.
-//! * `DIR/stats.jsonl`: one JSON line per committed window.
+//! * `DIR/stats.jsonl`: one JSON line per committed window (deterministic:
+//!   a resumed run writes the same bytes).
+//! * `DIR/timing.jsonl`: one JSON line per committed window with its wall-clock
+//!   time, in total and per stage.
 //! * `DIR/frames.jsonl`: one line per frame: index, file, time, window.
 //! * standard output, last line: one JSON object with `state_hash`, `windows`,
 //!   `rollbacks`, `wall_seconds` and more.
@@ -74,25 +77,39 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn write_frame(dir: &Path, k: u64, world: &World, format: FrameFormat) -> anyhow::Result<String> {
-    let name = match format {
-        FrameFormat::Ply => format!("frame_{k:05}.ply"),
-        FrameFormat::Obj => format!("frame_{k:05}.obj"),
-    };
-    let path = dir.join(&name);
+/// The folder (under the output folder) that frames of `format` go to.
+pub fn frames_folder(format: FrameFormat) -> &'static str {
+    match format {
+        FrameFormat::Ply => "frames",
+        FrameFormat::Obj => "frames-obj",
+        FrameFormat::Vtk => "frames-vtk",
+    }
+}
+
+/// Writes frame `k` in `format`; returns its path relative to `out`.
+fn write_frame(out: &Path, k: u64, world: &World, format: FrameFormat) -> anyhow::Result<String> {
+    let rel = format!(
+        "{}/frame_{k:05}.{}",
+        frames_folder(format),
+        format.extension()
+    );
+    let path = out.join(&rel);
     match format {
         FrameFormat::Ply => weft_io::write_ply(&path, &world.x, &world.triangles, Some(&world.v))?,
         FrameFormat::Obj => weft_io::write_obj(&path, &world.x, &world.triangles)?,
+        FrameFormat::Vtk => anyhow::bail!("VTK output is not built yet"),
     }
-    Ok(name)
+    Ok(rel)
 }
 
 /// Runs `scene` to its end time, writing outputs under `out`.
 pub fn simulate(scene: &Scene, out: &Path, quiet: bool) -> anyhow::Result<RunSummary> {
     let started = Instant::now();
-    let frames_dir = out.join("frames");
-    std::fs::create_dir_all(&frames_dir)
-        .with_context(|| format!("cannot create {}", frames_dir.display()))?;
+    for &f in &scene.output.formats {
+        let dir = out.join(frames_folder(f));
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create {}", dir.display()))?;
+    }
     let world = World::build(&scene.world)?;
     let mut engine = Engine::new(world, Serial)?;
     let w = &engine.world;
@@ -111,10 +128,17 @@ pub fn simulate(scene: &Scene, out: &Path, quiet: bool) -> anyhow::Result<RunSum
     let frame_dt = 1.0 / scene.output.frame_rate;
     let mut stats_file = BufWriter::new(File::create(out.join("stats.jsonl"))?);
     let mut frames_file = BufWriter::new(File::create(out.join("frames.jsonl"))?);
+    let mut timing_file = BufWriter::new(File::create(out.join("timing.jsonl"))?);
     let mut frame = 0u64;
     let mut emit = |engine: &Engine<Serial>, frame: &mut u64| -> anyhow::Result<()> {
         let w = &engine.world;
-        let name = write_frame(&frames_dir, *frame, w, scene.output.format)?;
+        let mut name = String::new();
+        for &f in &scene.output.formats {
+            let rel = write_frame(out, *frame, w, f)?;
+            if name.is_empty() {
+                name = rel;
+            }
+        }
         let rec = FrameRecord {
             frame: *frame,
             file: &name,
@@ -140,6 +164,7 @@ pub fn simulate(scene: &Scene, out: &Path, quiet: bool) -> anyhow::Result<RunSum
             }
         };
         writeln!(stats_file, "{}", serde_json::to_string(&stats)?)?;
+        writeln!(timing_file, "{}", serde_json::to_string(&stats.timing())?)?;
         while engine.world.time() + 1e-12 >= frame as f64 * frame_dt {
             emit(&engine, &mut frame)?;
         }
@@ -158,6 +183,7 @@ pub fn simulate(scene: &Scene, out: &Path, quiet: bool) -> anyhow::Result<RunSum
     }
     stats_file.flush()?;
     frames_file.flush()?;
+    timing_file.flush()?;
     let w = &engine.world;
     Ok(RunSummary {
         scene: scene.name.clone(),

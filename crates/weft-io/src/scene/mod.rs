@@ -56,14 +56,32 @@ pub enum SceneError {
 #[derive(Clone, Debug, PartialEq)]
 pub struct OutputSettings {
     pub frame_rate: f64,
-    pub format: FrameFormat,
+    /// Formats every frame is written in (at least one, no repeats).
+    pub formats: Vec<FrameFormat>,
+    /// Committed windows between checkpoints (0 = none on a schedule).
+    pub checkpoint_every: u64,
 }
 
 /// Frame file format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FrameFormat {
+    /// Binary little-endian PLY with f64 positions and per-vertex velocities.
     Ply,
+    /// Wavefront OBJ (positions and faces).
     Obj,
+    /// VTK XML unstructured grid (`.vtu`) with velocities, indexed by a `.pvd`.
+    Vtk,
+}
+
+impl FrameFormat {
+    /// The file extension (and folder name) of the format.
+    pub fn extension(self) -> &'static str {
+        match self {
+            FrameFormat::Ply => "ply",
+            FrameFormat::Obj => "obj",
+            FrameFormat::Vtk => "vtu",
+        }
+    }
 }
 
 /// A loaded scene.
@@ -76,6 +94,10 @@ pub struct Scene {
     pub output: OutputSettings,
     /// The effective overrides, as given.
     pub overrides: Vec<String>,
+    /// XXH3-128 of the scene with its overrides applied, `time.end` left out
+    /// (a run may be resumed with a later end time): checkpoints record it and
+    /// `--resume` refuses a scene that differs.
+    pub fingerprint: String,
 }
 
 /// Loads `path` with `overrides` (`key.path=value`, applied in order).
@@ -103,12 +125,22 @@ pub fn parse_scene(text: &str, path: &Path, overrides: &[String]) -> Result<Scen
             message,
         })?;
     }
-    let file = SceneFile::deserialize(table).map_err(|e| SceneError::Override {
+    let file = SceneFile::deserialize(table.clone()).map_err(|e| SceneError::Override {
         path: path.to_path_buf(),
         assignment: overrides.join(" "),
         message: e.to_string().trim_end().to_string(),
     })?;
-    build(file, path, overrides)
+    let mut scene = build(file, path, overrides)?;
+    if let Some(time) = table.get_mut("time").and_then(|t| t.as_table_mut()) {
+        time.remove("end");
+    }
+    // `toml::Table` keeps keys sorted, so equal scenes print equal text.
+    let canonical = toml::to_string(&table).unwrap_or_default();
+    scene.fingerprint = format!(
+        "{:032x}",
+        xxhash_rust::xxh3::xxh3_128(canonical.as_bytes())
+    );
+    Ok(scene)
 }
 
 /// Sets `key.path=value` in `root` (a table); `value` is TOML (a number,
@@ -275,17 +307,32 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
     if !pos(file.output.frame_rate) {
         return Err(invalid(path, "output.frame_rate", "must be positive"));
     }
-    let format = match file.output.format.as_str() {
-        "ply" => FrameFormat::Ply,
-        "obj" => FrameFormat::Obj,
-        other => {
+    let mut formats = Vec::new();
+    for (i, f) in file.output.formats.iter().enumerate() {
+        let format = match f.as_str() {
+            "ply" => FrameFormat::Ply,
+            "obj" => FrameFormat::Obj,
+            "vtk" => FrameFormat::Vtk,
+            other => {
+                return Err(invalid(
+                    path,
+                    format!("output.formats[{i}]"),
+                    format!("unknown format '{other}' (expected ply, obj or vtk)"),
+                ))
+            }
+        };
+        if formats.contains(&format) {
             return Err(invalid(
                 path,
-                "output.format",
-                format!("unknown format '{other}' (expected ply or obj)"),
-            ))
+                format!("output.formats[{i}]"),
+                format!("'{f}' is listed twice"),
+            ));
         }
-    };
+        formats.push(format);
+    }
+    if formats.is_empty() {
+        return Err(invalid(path, "output.formats", "must name at least one format"));
+    }
     if file.cloth.is_empty() {
         return Err(invalid(
             path,
@@ -538,8 +585,10 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
         end_time: file.time.end,
         output: OutputSettings {
             frame_rate: file.output.frame_rate,
-            format,
+            formats,
+            checkpoint_every: file.output.checkpoint_every,
         },
         overrides: overrides.to_vec(),
+        fingerprint: String::new(),
     })
 }

@@ -150,23 +150,31 @@ pub struct OutputSection {
     /// Frames per second of output.
     #[serde(default = "default_frame_rate")]
     pub frame_rate: f64,
-    /// Frame format: "ply" or "obj".
-    #[serde(default = "default_format")]
-    pub format: String,
+    /// Frame formats, any of "ply", "obj", "vtk".
+    #[serde(default = "default_formats")]
+    pub formats: Vec<String>,
+    /// Write a checkpoint every this many committed windows (0 = only at
+    /// `--stop-after`, on signals and at the rollback cap).
+    #[serde(default = "default_checkpoint_every")]
+    pub checkpoint_every: u64,
 }
 
 fn default_frame_rate() -> f64 {
     30.0
 }
-fn default_format() -> String {
-    "ply".into()
+fn default_formats() -> Vec<String> {
+    vec!["ply".into()]
+}
+fn default_checkpoint_every() -> u64 {
+    100
 }
 
 impl Default for OutputSection {
     fn default() -> Self {
         Self {
             frame_rate: default_frame_rate(),
-            format: default_format(),
+            formats: default_formats(),
+            checkpoint_every: default_checkpoint_every(),
         }
     }
 }
