@@ -13,7 +13,7 @@ use clap::{Parser, Subcommand};
 
 /// weft — cloth and thin shells that never miss a collision.
 #[derive(Debug, Parser)]
-#[command(name = "weft", version, about, long_about = None)]
+#[command(name = "weft", version, about, long_about = None, term_width = 100, max_term_width = 100)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -29,6 +29,10 @@ pub enum Command {
     Check(commands::check::CheckArgs),
     /// Scene statistics: sizes, masses, initial strain, steps, memory.
     Info(commands::info::InfoArgs),
+    /// Render a run folder to PNG frames and an MP4 or GIF preview.
+    Render(commands::render::RenderArgs),
+    /// Plot a run's energy, momentum, contacts and wall time to PNG charts.
+    Plot(commands::plot::PlotArgs),
 }
 
 /// Parses `args` (program name first) and runs the command.
@@ -53,6 +57,8 @@ where
         Command::CcdBench(a) => commands::ccd_bench::run(a),
         Command::Check(a) => commands::check::run(a),
         Command::Info(a) => commands::info::run(a),
+        Command::Render(a) => commands::render::run(a),
+        Command::Plot(a) => commands::plot::run(a),
     };
     match result {
         Ok(code) => code,

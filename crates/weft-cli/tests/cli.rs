@@ -195,6 +195,73 @@ fn bad_scenes_are_refused_with_clear_messages() {
     }
 }
 
+/// Bad mesh files behind a scene: malformed, non-manifold, degenerate, NaN,
+/// out-of-range indices — each refused with the file, the line or element and
+/// the problem; exit 1; no panic.
+#[test]
+fn bad_meshes_are_refused_naming_file_and_element() {
+    let dir = tempfile::tempdir().unwrap();
+    let square = "v 0 0.3 0\nv 0.2 0.3 0\nv 0.2 0.3 0.2\nv 0 0.3 0.2\n";
+    let cases: Vec<(&str, String, Vec<&str>)> = vec![
+        (
+            "malformed face",
+            format!("{square}f 1 2\n"),
+            vec!["bad.obj:5", "at least 3"],
+        ),
+        (
+            "index out of range",
+            format!("{square}f 1 2 9\n"),
+            vec!["bad.obj:5", "9"],
+        ),
+        (
+            "not a number",
+            "v 0 zero 0\nv 1 0 0\nv 0 0 1\nf 1 2 3\n".into(),
+            vec!["bad.obj:1"],
+        ),
+        (
+            "NaN coordinate",
+            format!("{square}v nan 0 0\nf 1 2 3\nf 1 3 5\n"),
+            vec!["bad.obj:5", "vertex 5", "non-finite"],
+        ),
+        (
+            "degenerate triangle",
+            "v 0 0.3 0\nv 0.1 0.3 0\nv 0.2 0.3 0\nf 1 2 3\n".into(),
+            vec!["bad.obj:4", "area"],
+        ),
+        (
+            "non-manifold edge",
+            format!("{square}v 0.1 0.5 0.1\nf 1 2 3\nf 1 3 4\nf 1 3 5\n"),
+            vec!["bad.obj", "non-manifold", "edge"],
+        ),
+    ];
+    for (what, obj, needles) in cases {
+        std::fs::write(dir.path().join("bad.obj"), obj).unwrap();
+        let scene_text = "version = 1\n[[cloth]]\nname = \"c\"\nmesh = \"bad.obj\"\n[cloth.material]\n\
+                          density = 0.2\nyoungs_modulus = 1e5\npoisson_ratio = 0.3\nthickness = 1e-3\n";
+        let path = dir.path().join("scene.toml");
+        std::fs::write(&path, scene_text).unwrap();
+        let o = weft(&[
+            "run",
+            path.to_str().unwrap(),
+            "--out",
+            dir.path().join("o").to_str().unwrap(),
+            "--quiet",
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{what}: {err}");
+        for needle in needles {
+            assert!(
+                err.contains(needle),
+                "{what}: message lacks '{needle}': {err}"
+            );
+        }
+        assert!(!err.contains("panicked"), "{what}: {err}");
+        let c = weft(&["check", dir.path().join("bad.obj").to_str().unwrap()]);
+        assert_ne!(c.status.code(), Some(0), "check refuses it too ({what})");
+        assert!(!String::from_utf8_lossy(&c.stderr).contains("panicked"));
+    }
+}
+
 /// Initially intersecting geometry is refused, naming the triangles.
 #[test]
 fn intersecting_initial_state_is_refused() {
@@ -324,4 +391,26 @@ fn info_reports_scene_figures() {
         out.contains("cloth") && out.contains("sphere") && out.contains("internal step"),
         "{out}"
     );
+}
+
+/// A reader that goes away (`weft info … | head -1`) ends weft quietly.
+#[test]
+fn a_closed_pipe_is_not_a_panic() {
+    use std::io::Read;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_weft"))
+        .args(["info", scene("drape.toml").to_str().unwrap()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take()); // close the read end before weft writes
+    let mut err = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    child.wait().unwrap();
+    assert!(!err.contains("panicked"), "{err}");
 }

@@ -9,5 +9,7 @@ pub mod ccd;
 pub mod distance;
 pub mod dop;
 pub mod intersections;
+pub mod knots;
+pub mod ribbon;
 pub mod shapes;
 pub mod tri_tri;

@@ -15,6 +15,16 @@ static COUNTER: AtomicU64 = AtomicU64::new(0);
 /// fsynced, and the temporary file is renamed over `path`. On failure the
 /// temporary file is removed and an existing `path` is left untouched.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    write_atomic_then(path, bytes, || {})
+}
+
+/// [`write_atomic`], running `before_rename` once the data are durable in the
+/// temporary file and before the rename makes them visible at `path`.
+pub fn write_atomic_then(
+    path: &Path,
+    bytes: &[u8],
+    before_rename: impl FnOnce(),
+) -> Result<(), IoError> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
@@ -31,6 +41,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
         .and_then(|()| file.sync_all())
         .and_then(|()| {
             drop(file);
+            before_rename();
             fs::rename(&tmp_path, path)
         });
     if let Err(e) = result {

@@ -8,6 +8,10 @@
 //!   optional `vx vy vz` velocities) and a binary little-endian writer;
 //! * [`atomic`] — [`write_atomic`], used by every writer so an existing file
 //!   is never left half-written;
+//! * [`vtk`] — VTK XML unstructured grids (`.vtu`, f64 points, velocities)
+//!   and their `.pvd` series index, for ParaView;
+//! * [`checkpoint`] — checkpoint files (postcard + zstd, version header,
+//!   checksum), written atomically;
 //! * [`read_mesh`] — picks the reader from the extension and runs
 //!   [`weft_core::validate`](fn@weft_core::validate), mapping an OBJ triangle
 //!   back to its source line.
@@ -19,10 +23,12 @@
 //! raw `f64` (PLY), so `read(write(x)) == x` bit for bit.
 
 pub mod atomic;
+pub mod checkpoint;
 pub mod error;
 pub mod obj;
 pub mod ply;
 pub mod scene;
+pub mod vtk;
 
 pub use atomic::write_atomic;
 pub use error::IoError;

@@ -19,6 +19,9 @@
 //! sums its impulses in (clock, stencil key) order; only vertices whose velocity
 //! changes are drifted to `t` and get a breakpoint, so zero kicks leave no trace.
 
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::DVec3;
@@ -32,6 +35,7 @@ use crate::diagnostics::{StageSeconds, WindowStats};
 use crate::error::SimError;
 use crate::executor::{Executor, Serial};
 use crate::layers::penalty_kick;
+use crate::state::EngineState;
 use crate::trajectory::Trajectories;
 use crate::world::World;
 
@@ -106,6 +110,8 @@ struct PassCounts {
     min_separation: f64,
     /// The pass ended early because a value became non-finite.
     truncated: Option<SimError>,
+    /// The pass stopped early because the engine was interrupted.
+    interrupted: Option<SimError>,
 }
 
 /// Scratch memory reused across windows.
@@ -126,7 +132,7 @@ struct Workspace {
 }
 
 /// Totals over a run.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RunTotals {
     pub windows: u64,
     pub rollbacks: u64,
@@ -143,6 +149,9 @@ pub struct Engine<E: Executor = Serial> {
     ws: Workspace,
     pub totals: RunTotals,
     pub ccd: CcdStats,
+    /// Set from outside (a signal handler, a deadline) to stop at the next
+    /// event batch, back at the window start.
+    interrupt: Option<Arc<AtomicBool>>,
 }
 
 impl<E: Executor> Engine<E> {
@@ -167,6 +176,7 @@ impl<E: Executor> Engine<E> {
             traj,
             totals: RunTotals::default(),
             ccd: CcdStats::default(),
+            interrupt: None,
         };
         engine.check_initial_state()?;
         Ok(engine)
@@ -175,6 +185,82 @@ impl<E: Executor> Engine<E> {
     /// The executor.
     pub fn executor(&self) -> &E {
         &self.exec
+    }
+
+    /// Makes [`Engine::step_window`] return [`SimError::Interrupted`] (with the
+    /// window start restored) soon after `flag` becomes true.
+    pub fn set_interrupt(&mut self, flag: Arc<AtomicBool>) {
+        self.interrupt = Some(flag);
+    }
+
+    fn interrupted(&self) -> bool {
+        self.interrupt
+            .as_ref()
+            .is_some_and(|f| f.load(Ordering::Relaxed))
+    }
+
+    /// The resumable state (call between windows).
+    pub fn state(&self) -> EngineState {
+        let w = &self.world;
+        EngineState {
+            tick: w.tick,
+            window_index: w.window_index,
+            x: w.x.iter().map(|p| p.to_array()).collect(),
+            v: w.v.iter().map(|p| p.to_array()).collect(),
+            tau: w.tau.clone(),
+            layers: w.layers.stencils.iter().map(|(k, s)| (*k, *s)).collect(),
+            totals: self.totals,
+        }
+    }
+
+    /// Continues from `state`, checked against this world: sizes, a tick on a
+    /// window boundary, finite values, every `tau` at the tick (states are
+    /// saved synchronized), layer keys that are stencils of this mesh.
+    pub fn restore(&mut self, state: EngineState) -> Result<(), SimError> {
+        let n = self.world.num_vertices();
+        let bad = |m: String| Err(SimError::StateMismatch(m));
+        if state.x.len() != n || state.v.len() != n || state.tau.len() != n {
+            return bad(format!(
+                "it has {} vertices, the scene has {n}",
+                state.x.len()
+            ));
+        }
+        let window = self.world.lattice.window();
+        if state.tick % window != 0 || state.tick / window != state.window_index {
+            return bad(format!(
+                "tick {} and window {} are not a window boundary of this scene's \
+                 lattice (window = {window} ticks)",
+                state.tick, state.window_index
+            ));
+        }
+        for i in 0..n {
+            if state.tau[i] != state.tick {
+                return bad(format!("vertex {i} is not synchronized at the saved tick"));
+            }
+            let finite = state.x[i].iter().chain(&state.v[i]).all(|c| c.is_finite());
+            if !finite {
+                return bad(format!("vertex {i} has a non-finite position or velocity"));
+            }
+        }
+        let mut layers = BTreeMap::new();
+        for (key, s) in &state.layers {
+            if key.v.iter().any(|&i| i as usize >= n) || s.depth == 0 {
+                return bad(format!(
+                    "active layer {key:?} (depth {}) is not a stencil of this mesh",
+                    s.depth
+                ));
+            }
+            layers.insert(*key, *s);
+        }
+        let w = &mut self.world;
+        w.tick = state.tick;
+        w.window_index = state.window_index;
+        w.x = state.x.into_iter().map(DVec3::from_array).collect();
+        w.v = state.v.into_iter().map(DVec3::from_array).collect();
+        w.tau = state.tau;
+        w.layers.stencils = layers;
+        self.totals = state.totals;
+        Ok(())
     }
 
     fn check_initial_state(&mut self) -> Result<(), SimError> {
@@ -252,6 +338,10 @@ impl<E: Executor> Engine<E> {
                 }
             };
             stages.events += clock.elapsed().as_secs_f64();
+            if let Some(e) = counts.interrupted.take() {
+                snap.restore(&mut self.world);
+                return Err(e);
+            }
             let clock = Instant::now();
             let candidates = {
                 let w = &self.world;
@@ -311,6 +401,7 @@ impl<E: Executor> Engine<E> {
                 self.world.layers.deepen(*key, extra);
             }
             rollbacks += 1;
+            crate::failpoint::hit("mid-rollback", self.totals.rollbacks + rollbacks as u64);
             if rollbacks > self.world.contact.max_rollbacks {
                 let key = reported[reported.len() - 1];
                 let p = self.world.x[key.v[0] as usize];
@@ -371,11 +462,23 @@ impl<E: Executor> Engine<E> {
         }
         self.ws.closest.clear();
         self.ws.closest.resize(active.len(), EMPTY_CACHE);
+        let mut batches = 0u64;
         loop {
             let t = next.iter().copied().min().unwrap_or(t1);
             if t >= t1 {
                 break;
             }
+            if batches == 1 {
+                crate::failpoint::hit("mid-window", self.world.window_index);
+            }
+            if self.interrupted() {
+                counts.interrupted = Some(SimError::Interrupted {
+                    time: self.world.lattice.seconds(t0),
+                });
+                end = t;
+                break;
+            }
+            batches += 1;
             firing.clear();
             for (c, nt) in next.iter_mut().enumerate() {
                 if *nt == t {
@@ -572,17 +675,31 @@ impl<E: Executor> Engine<E> {
     }
 
     /// Stencils among `candidates` that may come within `eta_(depth+1)`.
+    /// Tests every candidate against its next layer, on the executor: tasks
+    /// take fixed runs of candidates in key order and the answers are merged in
+    /// that order, so the result does not depend on the executor.
     fn narrow_phase(&mut self, candidates: &[StencilKey]) -> Vec<StencilKey> {
+        const TASK: usize = 64;
         let w = &self.world;
-        let mut reported = Vec::new();
-        for key in candidates {
-            let depth = w.layers.depth(key);
-            let eta = w.schedule.eta(depth + 1);
-            let traj = key.v.map(|i| self.traj.of(i as usize));
-            self.totals.narrow_queries += 1;
-            if proximity(key.kind, &traj, eta, &mut self.ccd) {
-                reported.push(*key);
+        let traj = &self.traj;
+        let tasks = candidates.len().div_ceil(TASK);
+        let answers = self.exec.map(tasks, &|t| {
+            let mut stats = CcdStats::default();
+            let mut reported = Vec::new();
+            for key in &candidates[t * TASK..((t + 1) * TASK).min(candidates.len())] {
+                let eta = w.schedule.eta(w.layers.depth(key) + 1);
+                let tr = key.v.map(|i| traj.of(i as usize));
+                if proximity(key.kind, &tr, eta, &mut stats) {
+                    reported.push(*key);
+                }
             }
+            (reported, stats)
+        });
+        self.totals.narrow_queries += candidates.len() as u64;
+        let mut reported = Vec::new();
+        for (r, stats) in answers {
+            reported.extend(r);
+            self.ccd.merge(&stats);
         }
         reported
     }

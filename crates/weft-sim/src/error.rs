@@ -82,4 +82,11 @@ pub enum SimError {
          simulation became unstable — lower the internal step (time.beta or time.internal_step)"
     )]
     NonFinite { place: Place, time: f64 },
+    /// The run was asked to stop (a signal or a deadline); the engine is back
+    /// at the start of the window it was in, which is the last committed state.
+    #[error("interrupted in the window starting at t = {time:.6} s")]
+    Interrupted { time: f64 },
+    /// A saved state does not fit this world.
+    #[error("the saved state does not fit this scene: {0}")]
+    StateMismatch(String),
 }

@@ -26,3 +26,27 @@ pub fn state_hash(w: &World) -> String {
     }
     format!("{:032x}", h.digest128())
 }
+
+/// Hex digest of what a world is built from and does not change while it
+/// runs: triangles, masses (hence which vertices are kinematic) and the
+/// initial positions and velocities. A checkpoint stores it so a resume can
+/// refuse a scene whose meshes changed since.
+pub fn world_fingerprint(w: &World) -> String {
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    h.update(&(w.x.len() as u64).to_le_bytes());
+    for t in &w.triangles {
+        for i in t {
+            h.update(&i.to_le_bytes());
+        }
+    }
+    for i in 0..w.x.len() {
+        let values = [w.mass[i], w.inv_mass[i]]
+            .into_iter()
+            .chain(w.x[i].to_array())
+            .chain(w.v[i].to_array());
+        for c in values {
+            h.update(&c.to_bits().to_le_bytes());
+        }
+    }
+    format!("{:032x}", h.digest128())
+}

@@ -6,17 +6,24 @@
 //! the script clock (the internal clock): at tick `t` the velocity is set to the
 //! chord `(P(t + h) - x(t)) / h`, so trajectories stay piecewise linear (exact for
 //! collision detection), continuous, and never drift away from the script.
+//!
+//! Rigid motions ([`Motion::Fixed`], [`Motion::Translate`], [`Motion::Rotate`])
+//! map a vertex's time-0 position to its position at `t`; a
+//! [`Motion::Sequence`] is per vertex: every vertex of the script has its own
+//! keyframed path (an animated character read from a mesh sequence).
+//! [`Script::position`] answers both.
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-/// A motion of a rigid vertex set.
+/// A scripted motion of a vertex set.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Motion {
     /// Does not move.
     Fixed,
-    /// Moves with a constant velocity (m/s).
-    Translate { velocity: DVec3 },
+    /// Moves with a constant velocity (m/s) until time `until` (s), then stays
+    /// at rest; `None` = forever.
+    Translate { velocity: DVec3, until: Option<f64> },
     /// Rotates about the axis through `center` along `axis` (normalized on
     /// construction) with angular velocity `omega(t)` (rad/s) interpolated
     /// linearly between `profile` points `(t, omega)` and held constant outside.
@@ -25,6 +32,102 @@ pub enum Motion {
         axis: DVec3,
         profile: Vec<(f64, f64)>,
     },
+    /// Per-vertex keyframes: vertex `k` of the script follows
+    /// `frames[i][k]`, linear in time between frames (see [`Keyframes`]).
+    Sequence(Keyframes),
+}
+
+/// Keyframed positions of a vertex set: frame `i` holds at time
+/// `start + i / frame_rate`; positions are interpolated linearly in time
+/// between frames, held at the first frame before `start` and at the last
+/// frame after the end.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Keyframes {
+    /// Frames per second (> 0).
+    pub frame_rate: f64,
+    /// Time of frame 0 (s).
+    pub start: f64,
+    /// `frames[i][k]`: position of vertex `k` in frame `i`; every frame has
+    /// the same number of vertices, and there is at least one frame.
+    pub frames: Vec<Vec<DVec3>>,
+}
+
+impl Keyframes {
+    /// Checks the rate, the start time, the frame sizes (`vertices` each)
+    /// and that every position is finite; the message says what is wrong.
+    pub fn validate(&self, vertices: usize) -> Result<(), String> {
+        if !(self.frame_rate > 0.0 && self.frame_rate.is_finite()) {
+            return Err(format!(
+                "frame rate {} must be a positive number of frames per second",
+                self.frame_rate
+            ));
+        }
+        if !self.start.is_finite() {
+            return Err(format!("start time {} is not finite", self.start));
+        }
+        if self.frames.is_empty() {
+            return Err("the sequence has no frames".into());
+        }
+        for (i, f) in self.frames.iter().enumerate() {
+            if f.len() != vertices {
+                return Err(format!(
+                    "frame {i} has {} vertices, the object has {vertices}",
+                    f.len()
+                ));
+            }
+            if let Some(k) = f.iter().position(|p| !p.is_finite()) {
+                return Err(format!("frame {i}: vertex {k} is not finite"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Number of vertices per frame.
+    pub fn num_vertices(&self) -> usize {
+        self.frames.first().map_or(0, Vec::len)
+    }
+
+    /// Time of the last frame (s).
+    pub fn end(&self) -> f64 {
+        self.start + (self.frames.len().saturating_sub(1)) as f64 / self.frame_rate
+    }
+
+    /// The frame interval holding time `t`: `(i, f)` with the position
+    /// `frames[i] + f (frames[i + 1] - frames[i])`, `f` in `[0, 1)`. A time
+    /// within the rounding error of `(t - start) · frame_rate` (a few ulps of
+    /// `t`, `start` and the frame index) of a frame time gives `f == 0`, so
+    /// `start + i / frame_rate` computed in floating point lands on frame `i`
+    /// itself and the position is that frame's, bit for bit.
+    fn locate(&self, t: f64) -> (usize, f64) {
+        let last = self.frames.len().saturating_sub(1);
+        let s = (t - self.start) * self.frame_rate;
+        if !(s > 0.0) {
+            return (0, 0.0);
+        }
+        let nearest = s.round();
+        let tol = 4.0
+            * f64::EPSILON
+            * ((t.abs() + self.start.abs()) * self.frame_rate + nearest.max(1.0));
+        if (s - nearest).abs() <= tol {
+            return ((nearest as usize).min(last), 0.0);
+        }
+        let i = s.floor();
+        if i >= last as f64 {
+            return (last, 0.0);
+        }
+        (i as usize, s - i)
+    }
+
+    /// Position of vertex `k` at time `t`.
+    pub fn position(&self, k: usize, t: f64) -> DVec3 {
+        let (i, f) = self.locate(t);
+        let a = self.frames[i][k];
+        if f == 0.0 {
+            return a;
+        }
+        let b = self.frames[i + 1][k];
+        a + (b - a) * f
+    }
 }
 
 impl Motion {
@@ -59,11 +162,19 @@ impl Motion {
             .sum()
     }
 
-    /// Position at time `t` of the point that is at `x0` at time 0.
-    pub fn position(&self, x0: DVec3, t: f64) -> DVec3 {
+    /// Position at time `t` of vertex `k` of a script, which is at `x0` at
+    /// time 0. Rigid motions move `x0`; a [`Motion::Sequence`] reads vertex
+    /// `k`'s own keyframes (and ignores `x0`).
+    pub fn position(&self, k: usize, x0: DVec3, t: f64) -> DVec3 {
         match self {
             Motion::Fixed => x0,
-            Motion::Translate { velocity } => x0 + *velocity * t,
+            Motion::Translate { velocity, until } => {
+                let t = match until {
+                    Some(u) => t.min(*u),
+                    None => t,
+                };
+                x0 + *velocity * t.max(0.0)
+            }
             Motion::Rotate {
                 center,
                 axis,
@@ -72,6 +183,7 @@ impl Motion {
                 let theta = Self::angle(profile, t);
                 rotate(x0 - *center, *axis, theta) + *center
             }
+            Motion::Sequence(frames) => frames.position(k, t),
         }
     }
 }
@@ -93,9 +205,14 @@ pub struct Script {
 }
 
 impl Script {
+    /// The scripted position `P(t)` of the script's `k`-th vertex.
+    pub fn position(&self, k: usize, t: f64) -> DVec3 {
+        self.motion.position(k, self.rest[k], t)
+    }
+
     /// The velocity of the chord from `x_now` (at `t`) to the script's position at `t + h`.
     pub fn chord_velocity(&self, k: usize, x_now: DVec3, t: f64, h: f64) -> DVec3 {
-        (self.motion.position(self.rest[k], t + h) - x_now) / h
+        (self.position(k, t + h) - x_now) / h
     }
 }
 
@@ -119,7 +236,127 @@ mod tests {
             axis: DVec3::Z,
             profile: vec![(0.0, 1.0)],
         };
-        let p = m.position(DVec3::new(2.0, 0.0, 0.5), std::f64::consts::FRAC_PI_2);
+        let p = m.position(0, DVec3::new(2.0, 0.0, 0.5), std::f64::consts::FRAC_PI_2);
         assert!((p - DVec3::new(1.0, 1.0, 0.5)).length() < 1e-12);
+    }
+
+    #[test]
+    fn translate_stops_at_until() {
+        let v = DVec3::new(1.0, -2.0, 0.5);
+        let x0 = DVec3::new(0.25, 1.0, -1.0);
+        let m = Motion::Translate {
+            velocity: v,
+            until: Some(0.5),
+        };
+        assert_eq!(m.position(0, x0, 0.0), x0);
+        assert_eq!(m.position(0, x0, 0.25), x0 + v * 0.25);
+        assert_eq!(m.position(0, x0, 0.5), x0 + v * 0.5);
+        assert_eq!(m.position(0, x0, 3.0), x0 + v * 0.5);
+        let forever = Motion::Translate {
+            velocity: v,
+            until: None,
+        };
+        assert_eq!(forever.position(0, x0, 3.0), x0 + v * 3.0);
+        // A chord that straddles `until` ends at the stop, and the next is zero.
+        let s = Script {
+            name: "pull".into(),
+            vertices: vec![0],
+            rest: vec![x0],
+            motion: m,
+        };
+        let h = 0.1;
+        let x = s.position(0, 0.45);
+        let chord = s.chord_velocity(0, x, 0.45, h);
+        assert!((x + chord * h - (x0 + v * 0.5)).length() < 1e-15);
+        let at_rest = s.position(0, 0.55);
+        assert_eq!(s.chord_velocity(0, at_rest, 0.55, h), DVec3::ZERO);
+    }
+
+    fn keyframes() -> Keyframes {
+        // Two vertices, three frames at 24 fps from t = 0.5; vertex 1 moves
+        // differently from vertex 0 (not a rigid motion).
+        Keyframes {
+            frame_rate: 24.0,
+            start: 0.5,
+            frames: vec![
+                vec![DVec3::new(0.0, 0.0, 0.0), DVec3::new(1.0, 0.0, 0.0)],
+                vec![DVec3::new(0.0, 0.3, 0.0), DVec3::new(1.0, 0.0, 0.7)],
+                vec![DVec3::new(0.1, 0.3, 0.0), DVec3::new(0.9, -0.2, 0.7)],
+            ],
+        }
+    }
+
+    #[test]
+    fn sequence_hits_frames_exactly_and_interpolates_linearly() {
+        let kf = keyframes();
+        assert!(kf.validate(2).is_ok());
+        assert_eq!(kf.end(), 0.5 + 2.0 / 24.0);
+        let m = Motion::Sequence(kf.clone());
+        for (i, frame) in kf.frames.iter().enumerate() {
+            let t = 0.5 + i as f64 / 24.0;
+            for (k, &p) in frame.iter().enumerate() {
+                assert_eq!(
+                    m.position(k, DVec3::splat(9.0), t),
+                    p,
+                    "frame {i} vertex {k}"
+                );
+            }
+        }
+        // Held before the start and after the end.
+        assert_eq!(m.position(1, DVec3::ZERO, 0.0), kf.frames[0][1]);
+        assert_eq!(m.position(1, DVec3::ZERO, 100.0), kf.frames[2][1]);
+        // A quarter of the way from frame 1 to frame 2.
+        let t = 0.5 + 1.25 / 24.0;
+        let want = kf.frames[1][1] + (kf.frames[2][1] - kf.frames[1][1]) * 0.25;
+        assert!((m.position(1, DVec3::ZERO, t) - want).length() < 1e-14);
+        // Continuous across a frame time.
+        let eps = 1e-9;
+        let t1 = 0.5 + 1.0 / 24.0;
+        let jump = m.position(0, DVec3::ZERO, t1 + eps) - m.position(0, DVec3::ZERO, t1 - eps);
+        assert!(jump.length() < 1e-6, "{jump:?}");
+    }
+
+    #[test]
+    fn sequence_chords_follow_each_vertex() {
+        let kf = keyframes();
+        let s = Script {
+            name: "walk".into(),
+            vertices: vec![7, 9],
+            rest: kf.frames[0].clone(),
+            motion: Motion::Sequence(kf.clone()),
+        };
+        let h = 1.0 / 96.0;
+        for k in 0..2 {
+            let mut x = s.position(k, 0.0);
+            let mut t = 0.0;
+            for _ in 0..60 {
+                x += s.chord_velocity(k, x, t, h) * h;
+                t += h;
+                assert!((x - s.position(k, t)).length() < 1e-14);
+            }
+            assert!((x - kf.frames[2][k]).length() < 1e-14);
+        }
+    }
+
+    #[test]
+    fn keyframes_validation_names_the_problem() {
+        let mut kf = keyframes();
+        assert!(kf
+            .validate(3)
+            .unwrap_err()
+            .contains("frame 0 has 2 vertices"));
+        kf.frames[2].pop();
+        assert!(kf
+            .validate(2)
+            .unwrap_err()
+            .contains("frame 2 has 1 vertices"));
+        let mut kf = keyframes();
+        kf.frame_rate = 0.0;
+        assert!(kf.validate(2).unwrap_err().contains("frame rate"));
+        let mut kf = keyframes();
+        kf.frames[1][0].x = f64::NAN;
+        assert!(kf.validate(2).unwrap_err().contains("not finite"));
+        kf.frames.clear();
+        assert!(kf.validate(2).unwrap_err().contains("no frames"));
     }
 }

@@ -18,6 +18,8 @@
 //! | [`executor`] | the `Executor` trait and the `Serial` executor |
 //! | [`world`] | building a validated world from a spec |
 //! | [`hash`] | the state hash |
+//! | [`state`] | the resumable state a checkpoint holds |
+//! | [`failpoint`] | deterministic crash points for resume tests |
 
 pub mod broad;
 pub mod clock;
@@ -26,11 +28,13 @@ pub mod diagnostics;
 pub mod engine;
 pub mod error;
 pub mod executor;
+pub mod failpoint;
 pub mod hash;
 pub mod internal;
 pub mod kinematics;
 pub mod layers;
 pub mod materials;
+pub mod state;
 pub mod trajectory;
 pub mod world;
 
@@ -39,4 +43,5 @@ pub use diagnostics::{WindowStats, WindowTiming};
 pub use engine::{Engine, RunTotals};
 pub use error::SimError;
 pub use executor::{Executor, Serial};
+pub use state::EngineState;
 pub use world::{ObjectKind, ObjectSpec, PinSpec, World, WorldSpec};

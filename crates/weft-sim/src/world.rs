@@ -182,15 +182,23 @@ impl World {
                     kinematic.extend(std::iter::repeat_n(false, n));
                 }
                 ObjectKind::Obstacle { motion } => {
-                    rest_all.extend_from_slice(&obj.mesh.positions);
+                    let motion = normalize_motion(motion, &obj.name, n)?;
+                    // A keyframed obstacle starts where its sequence is at t = 0.
+                    if let Motion::Sequence(frames) = &motion {
+                        for (k, p) in all.positions[v0 as usize..].iter_mut().enumerate() {
+                            *p = frames.position(k, 0.0);
+                        }
+                    }
+                    let start = all.positions[v0 as usize..].to_vec();
+                    rest_all.extend_from_slice(&start);
                     v.extend(std::iter::repeat_n(DVec3::ZERO, n));
                     tri_material.extend(std::iter::repeat_n(None, obj.mesh.num_triangles()));
                     kinematic.extend(std::iter::repeat_n(true, n));
                     scripts.push(Script {
                         name: obj.name.clone(),
                         vertices: (v0..v0 + n as u32).collect(),
-                        rest: obj.mesh.positions.clone(),
-                        motion: normalize_motion(motion, &obj.name)?,
+                        rest: start,
+                        motion,
                     });
                 }
             }
@@ -239,8 +247,8 @@ impl World {
             scripts.push(Script {
                 name: pin.name.clone(),
                 rest: ids.iter().map(|&g| all.positions[g as usize]).collect(),
+                motion: normalize_motion(&pin.motion, &pin.name, ids.len())?,
                 vertices: ids,
-                motion: normalize_motion(&pin.motion, &pin.name)?,
             });
         }
         let nv = all.positions.len();
@@ -292,7 +300,21 @@ impl World {
         // Internal step: beta * 2 / omega_max of the assembled rest system.
         let omega_max = internal.max_frequency(&rest_all, &mass);
         let h_el = match spec.time.internal_step {
-            Some(h) if h > 0.0 && h.is_finite() => h,
+            Some(h) if h > 0.0 && h.is_finite() => {
+                // A given step may not exceed the explicit stability limit
+                // 2 / omega_max of the assembled rest system (beta = 1).
+                let limit = materials::stable_step(omega_max, 1.0);
+                if h > limit {
+                    return Err(SimError::Config(format!(
+                        "the internal step {h:e} s (time.internal_step, or time.window / \
+                         time.steps_per_window) exceeds the stability step 2 / omega_max = \
+                         {limit:e} s of the assembled rest system (omega_max = {omega_max:e} \
+                         rad/s); use a step of at most {limit:e} s, or leave time.internal_step \
+                         out to derive beta · 2 / omega_max"
+                    )));
+                }
+                h
+            }
             Some(h) => {
                 return Err(SimError::Config(format!(
                     "time.internal_step = {h} must be a positive number of seconds"
@@ -436,7 +458,8 @@ impl World {
     }
 }
 
-fn normalize_motion(m: &Motion, name: &str) -> Result<Motion, SimError> {
+/// Validates a script's motion for `n` vertices (axis normalized).
+fn normalize_motion(m: &Motion, name: &str, n: usize) -> Result<Motion, SimError> {
     match m {
         Motion::Rotate {
             center,
@@ -462,9 +485,20 @@ fn normalize_motion(m: &Motion, name: &str) -> Result<Motion, SimError> {
                 profile: profile.clone(),
             })
         }
-        Motion::Translate { velocity } if !velocity.is_finite() => Err(SimError::Config(format!(
-            "script '{name}': velocity must be finite"
+        Motion::Translate { velocity, .. } if !velocity.is_finite() => Err(SimError::Config(
+            format!("script '{name}': velocity must be finite"),
+        )),
+        Motion::Translate {
+            until: Some(u), ..
+        } if !(*u >= 0.0 && u.is_finite()) => Err(SimError::Config(format!(
+            "script '{name}': translation end time `until` = {u} must be a non-negative number of seconds"
         ))),
+        Motion::Sequence(frames) => match frames.validate(n) {
+            Ok(()) => Ok(m.clone()),
+            Err(e) => Err(SimError::Config(format!(
+                "script '{name}': mesh sequence: {e}"
+            ))),
+        },
         other => Ok(other.clone()),
     }
 }

@@ -3,4 +3,6 @@
 pub mod ccd_bench;
 pub mod check;
 pub mod info;
+pub mod plot;
+pub mod render;
 pub mod run;

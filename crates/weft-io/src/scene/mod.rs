@@ -4,6 +4,7 @@
 //! unknown keys and wrong types with the file, line and key, resolves mesh files
 //! relative to the scene, runs the generators and validates every value.
 
+pub mod ribbon;
 pub mod schema;
 
 use std::path::{Path, PathBuf};
@@ -13,11 +14,14 @@ use serde::Deserialize;
 use thiserror::Error;
 use weft_core::TriMesh;
 use weft_sim::config::{ContactConfig, LimitsConfig, TimeConfig};
-use weft_sim::kinematics::Motion;
+use weft_sim::kinematics::{Keyframes, Motion};
 use weft_sim::materials::Material;
 use weft_sim::{ObjectKind, ObjectSpec, PinSpec, WorldSpec};
 
-use schema::{MotionSection, SceneFile, Transform, SCENE_VERSION};
+use schema::{
+    CameraSection, ClothSection, MeshSequenceSection, MotionSection, SceneFile, TimeSection,
+    Transform, DEFAULT_STEPS_PER_WINDOW, SCENE_VERSION,
+};
 
 /// A scene that cannot be loaded. Messages name the file and, where known, the
 /// line and key.
@@ -84,6 +88,20 @@ impl FrameFormat {
     }
 }
 
+/// Where a renderer looks from: `[camera]` of the scene (the simulation
+/// ignores it).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraSettings {
+    /// Eye position (m).
+    pub eye: [f64; 3],
+    /// Point looked at (m).
+    pub target: [f64; 3],
+    /// Up direction (not parallel to `target - eye`).
+    pub up: [f64; 3],
+    /// Vertical field of view (degrees, in (0, 180)).
+    pub fov_degrees: f64,
+}
+
 /// A loaded scene.
 #[derive(Clone, Debug)]
 pub struct Scene {
@@ -92,6 +110,8 @@ pub struct Scene {
     pub world: WorldSpec,
     pub end_time: f64,
     pub output: OutputSettings,
+    /// The `[camera]` table, if the scene has one.
+    pub camera: Option<CameraSettings>,
     /// The effective overrides, as given.
     pub overrides: Vec<String>,
     /// XXH3-128 of the scene with its overrides applied, `time.end` left out
@@ -136,10 +156,7 @@ pub fn parse_scene(text: &str, path: &Path, overrides: &[String]) -> Result<Scen
     }
     // `toml::Table` keeps keys sorted, so equal scenes print equal text.
     let canonical = toml::to_string(&table).unwrap_or_default();
-    scene.fingerprint = format!(
-        "{:032x}",
-        xxhash_rust::xxh3::xxh3_128(canonical.as_bytes())
-    );
+    scene.fingerprint = format!("{:032x}", xxhash_rust::xxh3::xxh3_128(canonical.as_bytes()));
     Ok(scene)
 }
 
@@ -244,11 +261,31 @@ fn apply_transform(
 }
 
 fn motion(m: &MotionSection, path: &Path, key: &str) -> Result<Motion, SceneError> {
-    match m.kind.as_deref().unwrap_or("fixed") {
+    let kind = m.kind.as_deref().unwrap_or("fixed");
+    if m.until.is_some() && kind != "translate" {
+        return Err(invalid(
+            path,
+            format!("{key}.motion.until"),
+            format!("`until` belongs to kind = \"translate\", not \"{kind}\""),
+        ));
+    }
+    match kind {
         "fixed" => Ok(Motion::Fixed),
-        "translate" => Ok(Motion::Translate {
-            velocity: v3(m.velocity),
-        }),
+        "translate" => {
+            if let Some(u) = m.until {
+                if !(u >= 0.0 && u.is_finite()) {
+                    return Err(invalid(
+                        path,
+                        format!("{key}.motion.until"),
+                        format!("{u} must be a non-negative number of seconds"),
+                    ));
+                }
+            }
+            Ok(Motion::Translate {
+                velocity: v3(m.velocity),
+                until: m.until,
+            })
+        }
         "rotate" => {
             if m.omega.is_empty() {
                 return Err(invalid(
@@ -282,6 +319,424 @@ fn load_mesh_file(scene: &Path, file: &str, key: &str) -> Result<TriMesh, SceneE
         })
 }
 
+/// Reads a mesh file with what its format carries (UVs, source lines).
+fn load_mesh_full(scene: &Path, file: &str, key: &str) -> Result<crate::MeshFile, SceneError> {
+    let p = scene.parent().unwrap_or(Path::new(".")).join(file);
+    crate::read_mesh(&p).map_err(|e| SceneError::Mesh {
+        path: scene.to_path_buf(),
+        key: key.to_string(),
+        message: e.to_string(),
+    })
+}
+
+/// `rest = "uv"`: each vertex's texture coordinates `(u, v) · uv_scale` in
+/// the xy plane. Needs an OBJ file with a UV on every face corner and one UV
+/// per vertex (no seams).
+fn uv_rest(scene: &Path, c: &ClothSection, key: &str) -> Result<Vec<DVec3>, SceneError> {
+    let rest_key = format!("{key}.rest");
+    let Some(f) = &c.mesh else {
+        return Err(invalid(
+            scene,
+            rest_key,
+            "\"uv\" needs a cloth read from a mesh file (`mesh`) with texture coordinates",
+        ));
+    };
+    let scale = c.uv_scale.unwrap_or(1.0);
+    if !(scale > 0.0 && scale.is_finite()) {
+        return Err(invalid(
+            scene,
+            format!("{key}.uv_scale"),
+            "must be a positive number of metres per UV unit",
+        ));
+    }
+    let file = load_mesh_full(scene, f, key)?;
+    let (Some(uvs), Some(face_uvs)) = (&file.uvs, &file.face_uvs) else {
+        return Err(invalid(
+            scene,
+            rest_key,
+            format!("\"uv\" needs texture coordinates (`vt`, `f a/t ...`) on every face corner; {f} has none on some faces"),
+        ));
+    };
+    let mut per_vertex: Vec<Option<[f64; 2]>> = vec![None; file.mesh.num_vertices()];
+    for (t, (tri, tuv)) in file.mesh.triangles.iter().zip(face_uvs).enumerate() {
+        for corner in 0..3 {
+            let v = tri[corner] as usize;
+            let uv = uvs[tuv[corner] as usize];
+            match per_vertex[v] {
+                None => per_vertex[v] = Some(uv),
+                Some(prev) if prev == uv => {}
+                Some(prev) => {
+                    let line = file
+                        .line_of_triangle(t)
+                        .map_or(String::new(), |l| format!(":{l}"));
+                    return Err(invalid(
+                        scene,
+                        rest_key,
+                        format!(
+                            "{f}{line}: vertex {} has two texture coordinates ({:?} and {:?}): a UV \
+                             seam; \"uv\" needs one per vertex (split the mesh along the seam)",
+                            v + 1,
+                            prev,
+                            uv
+                        ),
+                    ));
+                }
+            }
+        }
+    }
+    per_vertex
+        .iter()
+        .enumerate()
+        .map(|(v, uv)| match uv {
+            Some([u, w]) => Ok(DVec3::new(u * scale, w * scale, 0.0)),
+            None => Err(invalid(
+                scene,
+                format!("{key}.rest"),
+                format!(
+                    "{f}: vertex {} is in no face, so it has no texture coordinate",
+                    v + 1
+                ),
+            )),
+        })
+        .collect()
+}
+
+/// Checks that `other` (read from `file`) has the connectivity of `mesh`.
+fn same_connectivity(
+    mesh: &TriMesh,
+    other: &TriMesh,
+    scene: &Path,
+    key: &str,
+    file: &str,
+    what: &str,
+) -> Result<(), SceneError> {
+    if other.num_vertices() != mesh.num_vertices() {
+        return Err(invalid(
+            scene,
+            key,
+            format!(
+                "{file} has {} vertices, {what} has {}",
+                other.num_vertices(),
+                mesh.num_vertices()
+            ),
+        ));
+    }
+    if other.num_triangles() != mesh.num_triangles() {
+        return Err(invalid(
+            scene,
+            key,
+            format!(
+                "{file} has {} triangles, {what} has {}",
+                other.num_triangles(),
+                mesh.num_triangles()
+            ),
+        ));
+    }
+    if let Some(f) = (0..mesh.num_triangles()).find(|&f| mesh.triangles[f] != other.triangles[f]) {
+        return Err(invalid(
+            scene,
+            key,
+            format!(
+                "{file}: triangle {f} is {:?}, in {what} it is {:?} (the connectivity must be the same)",
+                other.triangles[f], mesh.triangles[f]
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// `true` if `name` matches `pattern` (`*` any run of characters, `?` one).
+fn glob_match(pattern: &str, name: &str) -> bool {
+    let (p, n): (Vec<char>, Vec<char>) = (pattern.chars().collect(), name.chars().collect());
+    // matched[j]: p[..i] matches n[..j].
+    let mut matched = vec![false; n.len() + 1];
+    matched[0] = true;
+    for &pc in &p {
+        let mut next = vec![false; n.len() + 1];
+        match pc {
+            '*' => {
+                let mut any = false;
+                for j in 0..=n.len() {
+                    any |= matched[j];
+                    next[j] = any;
+                }
+            }
+            _ => {
+                for j in 0..n.len() {
+                    next[j + 1] = matched[j] && (pc == '?' || pc == n[j]);
+                }
+            }
+        }
+        matched = next;
+    }
+    matched[n.len()]
+}
+
+/// The frame files of a mesh sequence, relative to the scene's folder.
+fn sequence_files(
+    scene: &Path,
+    seq: &MeshSequenceSection,
+    key: &str,
+) -> Result<Vec<String>, SceneError> {
+    let key = format!("{key}.mesh_sequence");
+    match (&seq.pattern, seq.files.is_empty()) {
+        (Some(_), false) => Err(invalid(scene, key, "give `files` or `pattern`, not both")),
+        (None, true) => Err(invalid(
+            scene,
+            key,
+            "give the frame `files = [...]` or a `pattern = \"dir/f*.obj\"`",
+        )),
+        (None, false) => Ok(seq.files.clone()),
+        (Some(pattern), true) => {
+            let (dir, name) = match pattern.rsplit_once('/') {
+                Some((d, n)) => (d, n),
+                None => ("", pattern.as_str()),
+            };
+            if dir.contains(['*', '?']) {
+                return Err(invalid(
+                    scene,
+                    format!("{key}.pattern"),
+                    format!("'{pattern}': wildcards are allowed in the file name only"),
+                ));
+            }
+            let base = scene.parent().unwrap_or(Path::new("."));
+            let folder = base.join(if dir.is_empty() { "." } else { dir });
+            let entries = std::fs::read_dir(&folder).map_err(|e| {
+                invalid(
+                    scene,
+                    format!("{key}.pattern"),
+                    format!("cannot list {}: {e}", folder.display()),
+                )
+            })?;
+            let mut names: Vec<String> = entries
+                .filter_map(|e| e.ok())
+                .filter(|e| e.file_type().is_ok_and(|t| !t.is_dir()))
+                .filter_map(|e| e.file_name().to_str().map(str::to_string))
+                .filter(|n| glob_match(name, n))
+                .collect();
+            names.sort();
+            if names.is_empty() {
+                return Err(invalid(
+                    scene,
+                    format!("{key}.pattern"),
+                    format!("'{pattern}' matches no file in {}", folder.display()),
+                ));
+            }
+            Ok(names
+                .into_iter()
+                .map(|n| {
+                    if dir.is_empty() {
+                        n
+                    } else {
+                        format!("{dir}/{n}")
+                    }
+                })
+                .collect())
+        }
+    }
+}
+
+/// Reads a mesh sequence: the first frame's mesh (transformed) and the
+/// keyframed motion of its vertices. Every frame must have the first one's
+/// connectivity; the transform applies to every frame.
+fn load_sequence(
+    scene: &Path,
+    seq: &MeshSequenceSection,
+    transform: &Transform,
+    key: &str,
+) -> Result<(TriMesh, Keyframes), SceneError> {
+    let seq_key = format!("{key}.mesh_sequence");
+    if !(seq.frame_rate > 0.0 && seq.frame_rate.is_finite()) {
+        return Err(invalid(
+            scene,
+            format!("{seq_key}.frame_rate"),
+            "must be a positive number of frames per second",
+        ));
+    }
+    if !seq.start.is_finite() {
+        return Err(invalid(
+            scene,
+            format!("{seq_key}.start"),
+            "must be a finite time (s)",
+        ));
+    }
+    let files = sequence_files(scene, seq, key)?;
+    let mut first: Option<TriMesh> = None;
+    let mut frames = Vec::with_capacity(files.len());
+    for (i, f) in files.iter().enumerate() {
+        let mut m = load_mesh_file(scene, f, &format!("{seq_key}.files[{i}]"))?;
+        apply_transform(&mut m, transform, scene, key)?;
+        match &first {
+            None => first = Some(m.clone()),
+            Some(m0) => same_connectivity(
+                m0,
+                &m,
+                scene,
+                &format!("{seq_key}.files[{i}]"),
+                f,
+                &format!("the first frame ({})", files[0]),
+            )?,
+        }
+        frames.push(m.positions);
+    }
+    let mesh = first.expect("at least one frame");
+    Ok((
+        mesh,
+        Keyframes {
+            frame_rate: seq.frame_rate,
+            start: seq.start,
+            frames,
+        },
+    ))
+}
+
+/// `[time]`: the internal step (if given or implied) and the steps per
+/// window, from any two of `window`, `internal_step`, `steps_per_window`.
+fn resolve_time(t: &TimeSection, path: &Path) -> Result<(Option<f64>, u64), SceneError> {
+    let pos = |x: f64| x > 0.0 && x.is_finite();
+    if t.steps_per_window == Some(0) {
+        return Err(invalid(path, "time.steps_per_window", "must be at least 1"));
+    }
+    if let Some(h) = t.internal_step {
+        if !pos(h) {
+            return Err(invalid(
+                path,
+                "time.internal_step",
+                "must be a positive number of seconds",
+            ));
+        }
+    }
+    let Some(w) = t.window else {
+        return Ok((
+            t.internal_step,
+            t.steps_per_window.unwrap_or(DEFAULT_STEPS_PER_WINDOW),
+        ));
+    };
+    if !pos(w) {
+        return Err(invalid(
+            path,
+            "time.window",
+            "must be a positive number of seconds",
+        ));
+    }
+    match t.internal_step {
+        Some(h) => {
+            let ratio = w / h;
+            let n = ratio.round();
+            if !(n >= 1.0 && n < u32::MAX as f64) {
+                return Err(invalid(
+                    path,
+                    "time.window",
+                    format!(
+                        "a window of {w:e} s holds {ratio:.3} internal steps of {h:e} s; it must hold at least one"
+                    ),
+                ));
+            }
+            let n = n as u64;
+            if let Some(s) = t.steps_per_window {
+                if s != n {
+                    return Err(invalid(
+                        path,
+                        "time.steps_per_window",
+                        format!(
+                            "{s} contradicts time.window / time.internal_step = {w:e} s / {h:e} s = \
+                             {ratio:.3} steps; give two of the three"
+                        ),
+                    ));
+                }
+            }
+            Ok((Some(h), n))
+        }
+        None => {
+            let s = t.steps_per_window.unwrap_or(DEFAULT_STEPS_PER_WINDOW);
+            Ok((Some(w / s as f64), s))
+        }
+    }
+}
+
+/// Validates `[camera]`.
+fn camera(c: &CameraSection, path: &Path) -> Result<CameraSettings, SceneError> {
+    let finite = |a: [f64; 3]| a.iter().all(|x| x.is_finite());
+    for (k, a) in [("eye", c.eye), ("target", c.target), ("up", c.up)] {
+        if !finite(a) {
+            return Err(invalid(path, format!("camera.{k}"), "must be finite"));
+        }
+    }
+    let view = v3(c.target) - v3(c.eye);
+    if !(view.length() > 0.0) {
+        return Err(invalid(
+            path,
+            "camera.target",
+            "must differ from camera.eye",
+        ));
+    }
+    let up = v3(c.up);
+    if !(up.cross(view).length() > 1e-9 * up.length() * view.length()) {
+        return Err(invalid(
+            path,
+            "camera.up",
+            "must be a non-zero vector not parallel to target - eye",
+        ));
+    }
+    if !(c.fov_degrees > 0.0 && c.fov_degrees < 180.0) {
+        return Err(invalid(
+            path,
+            "camera.fov_degrees",
+            "must be in (0, 180) degrees",
+        ));
+    }
+    Ok(CameraSettings {
+        eye: c.eye,
+        target: c.target,
+        up: c.up,
+        fov_degrees: c.fov_degrees,
+    })
+}
+
+/// Pin selection `boundary = "all" | "outer"` on `mesh` (object-local ids).
+fn boundary_vertices(
+    mesh: &TriMesh,
+    which: &str,
+    path: &Path,
+    key: &str,
+) -> Result<Vec<u32>, SceneError> {
+    let loops = weft_geom::shapes::boundary_components(mesh.num_vertices(), &mesh.triangles);
+    if loops.is_empty() {
+        return Err(invalid(
+            path,
+            format!("{key}.boundary"),
+            "the object is closed: it has no boundary",
+        ));
+    }
+    match which {
+        "all" => Ok(loops.concat()),
+        "outer" => {
+            let extent = |l: &Vec<u32>| {
+                let (lo, hi) = l.iter().fold(
+                    (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+                    |(lo, hi), &i| {
+                        let p = mesh.positions[i as usize];
+                        (lo.min(p), hi.max(p))
+                    },
+                );
+                (hi - lo).length()
+            };
+            let mut best = 0;
+            for (i, l) in loops.iter().enumerate() {
+                if extent(l) > extent(&loops[best]) {
+                    best = i;
+                }
+            }
+            Ok(loops[best].clone())
+        }
+        other => Err(invalid(
+            path,
+            format!("{key}.boundary"),
+            format!("unknown boundary '{other}' (expected all or outer)"),
+        )),
+    }
+}
+
 fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, SceneError> {
     if file.version != SCENE_VERSION {
         return Err(invalid(
@@ -301,9 +756,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             "must be a positive number of seconds",
         ));
     }
-    if file.time.steps_per_window == 0 {
-        return Err(invalid(path, "time.steps_per_window", "must be at least 1"));
-    }
+    let (internal_step, steps_per_window) = resolve_time(&file.time, path)?;
     if !pos(file.output.frame_rate) {
         return Err(invalid(path, "output.frame_rate", "must be positive"));
     }
@@ -331,7 +784,11 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
         formats.push(format);
     }
     if formats.is_empty() {
-        return Err(invalid(path, "output.formats", "must name at least one format"));
+        return Err(invalid(
+            path,
+            "output.formats",
+            "must name at least one format",
+        ));
     }
     if file.cloth.is_empty() {
         return Err(invalid(
@@ -346,7 +803,19 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
         .iter()
         .filter_map(|c| c.grid.as_ref())
         .map(|g| (g.resolution[0] * g.resolution[1]) as f64)
-        .sum();
+        .sum::<f64>()
+        + file
+            .cloth
+            .iter()
+            .filter_map(|c| c.ribbon.as_ref())
+            .map(ribbon::written_vertices)
+            .sum::<f64>()
+        + file
+            .cloth
+            .iter()
+            .filter_map(|c| c.tube.as_ref())
+            .map(|t| (t.resolution[0] * t.resolution[1]) as f64)
+            .sum::<f64>();
     let res_scale = if file.size > 0 && generated > 0.0 {
         (file.size as f64 / generated).sqrt()
     } else {
@@ -356,6 +825,57 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
     for (ci, c) in file.cloth.iter().enumerate() {
         let key = format!("cloth[{ci}] '{}'", c.name);
         let (mut mesh, flat) = match (&c.mesh, &c.grid) {
+            _ if c.tube.is_some()
+                && (c.mesh.is_some() || c.grid.is_some() || c.ribbon.is_some()) =>
+            {
+                return Err(invalid(
+                    path,
+                    key,
+                    "give exactly one of `mesh`, `grid`, `ribbon` or `tube`",
+                ))
+            }
+            _ if c.tube.is_some() => {
+                let t = c.tube.as_ref().expect("checked by the guard");
+                let tube_key = format!("{key}.tube");
+                let rest_radius = t.rest_radius.unwrap_or(t.radius);
+                if !(pos(t.radius) && pos(rest_radius)) {
+                    return Err(invalid(
+                        path,
+                        tube_key,
+                        "radius and rest_radius must be positive",
+                    ));
+                }
+                let (a, b) = (v3(t.from), v3(t.to));
+                if !(a.is_finite() && b.is_finite() && (b - a).length() > 0.0) {
+                    return Err(invalid(
+                        path,
+                        tube_key,
+                        "from and to must be distinct finite points",
+                    ));
+                }
+                let res = [
+                    ((t.resolution[0] as f64 * res_scale).round() as usize).max(3),
+                    ((t.resolution[1] as f64 * res_scale).round() as usize).max(2),
+                ];
+                let m = weft_geom::shapes::tube(a, b, t.radius, res);
+                let rest = weft_geom::shapes::tube(a, b, rest_radius, res);
+                (m, Some(rest))
+            }
+            (None, None) if c.ribbon.is_some() => {
+                let r = c.ribbon.as_ref().expect("checked by the guard");
+                let target = (file.size > 0 && generated > 0.0).then(|| {
+                    (ribbon::written_vertices(r) * file.size as f64 / generated).round() as usize
+                });
+                let rb = ribbon::build(r, path, &key, file.contact.thickness, target)?;
+                (rb.mesh, Some(rb.flat))
+            }
+            _ if c.ribbon.is_some() => {
+                return Err(invalid(
+                    path,
+                    key,
+                    "give exactly one of `mesh`, `grid`, `ribbon` or `tube`",
+                ))
+            }
             (Some(f), None) => {
                 let m = load_mesh_file(path, f, &key)?;
                 (m, None)
@@ -397,14 +917,105 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                         *p += n * (g.wave * amp);
                     }
                 }
+                let mut flat = flat;
+                if let Some(h) = &g.hole {
+                    let hole_key = format!("{key}.grid.hole");
+                    let rest_radius = h.rest_radius.unwrap_or(h.radius);
+                    if !(pos(h.radius) && pos(rest_radius)) {
+                        return Err(invalid(
+                            path,
+                            hole_key,
+                            "radius and rest_radius must be positive",
+                        ));
+                    }
+                    if !h.center.iter().all(|x| x.is_finite()) {
+                        return Err(invalid(path, hole_key, "center must be finite"));
+                    }
+                    // The rest shape is remapped out to twice the larger radius;
+                    // that band must lie inside the sheet.
+                    let band = 2.0 * h.radius.max(rest_radius);
+                    if h.center[0].abs() + band > 0.5 * g.size[0]
+                        || h.center[1].abs() + band > 0.5 * g.size[1]
+                    {
+                        return Err(invalid(
+                            path,
+                            hole_key,
+                            format!(
+                                "the hole and its band (out to {band} m from its center) must lie inside the {} m × {} m grid",
+                                g.size[0], g.size[1]
+                            ),
+                        ));
+                    }
+                    let c = v3(g.center) + eu * h.center[0] + ev * h.center[1];
+                    let (holed, index) = weft_geom::shapes::grid_with_hole(
+                        v3(g.center),
+                        eu,
+                        ev,
+                        g.size,
+                        res,
+                        h.center,
+                        h.radius,
+                    )
+                    .map_err(|e| {
+                        invalid(
+                            path,
+                            hole_key.clone(),
+                            format!("{e}; raise the resolution or the radius"),
+                        )
+                    })?;
+                    // Start shape: the grid's own (waved) positions where a
+                    // vertex kept its place; the rim ring and the relaxed cut
+                    // get the wave at their position.
+                    let n = eu.cross(ev);
+                    let positions = holed
+                        .positions
+                        .iter()
+                        .zip(&index)
+                        .map(|(p, i)| match i {
+                            Some(i) if *p == flat.positions[*i as usize] => {
+                                m.positions[*i as usize]
+                            }
+                            _ if g.wave != 0.0 => {
+                                let d = *p - v3(g.center);
+                                let s = d.dot(eu) / g.size[0] + 0.5;
+                                let t = d.dot(ev) / g.size[1] + 0.5;
+                                let amp = libm::sin(std::f64::consts::PI * g.wave_count[0] * s)
+                                    * libm::sin(std::f64::consts::PI * g.wave_count[1] * t);
+                                *p + n * (g.wave * amp)
+                            }
+                            _ => *p,
+                        })
+                        .collect();
+                    m = TriMesh::new(positions, holed.triangles.clone());
+                    flat = holed;
+                    let normal = eu.cross(ev);
+                    for p in &mut flat.positions {
+                        *p = weft_geom::shapes::radial_remap(
+                            *p,
+                            c,
+                            normal,
+                            h.radius,
+                            rest_radius,
+                            band,
+                        );
+                    }
+                }
                 (m, Some(flat))
             }
             _ => return Err(invalid(path, key, "give exactly one of `mesh` or `grid`")),
         };
         apply_transform(&mut mesh, &c.transform, path, &key)?;
+        if c.rest_mesh.is_some() && c.rest != "initial" {
+            return Err(invalid(
+                path,
+                format!("{key}.rest_mesh"),
+                format!("give `rest_mesh` or rest = \"{}\", not both", c.rest),
+            ));
+        }
         let rest = match c.rest.as_str() {
-            "initial" => None,
-            "flat" => match flat {
+            // A ribbon always rests on its flat strip.
+            "initial" if c.ribbon.is_none() => None,
+            "initial" | "flat" => match flat {
                 Some(f) => Some(f.positions),
                 None => {
                     return Err(invalid(
@@ -414,12 +1025,30 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                     ))
                 }
             },
+            "uv" => Some(uv_rest(path, c, &key)?),
             other => {
                 return Err(invalid(
                     path,
                     format!("{key}.rest"),
-                    format!("unknown rest shape '{other}' (expected initial or flat)"),
+                    format!("unknown rest shape '{other}' (expected initial, flat or uv)"),
                 ))
+            }
+        };
+        if c.uv_scale.is_some() && c.rest != "uv" {
+            return Err(invalid(
+                path,
+                format!("{key}.uv_scale"),
+                "belongs to rest = \"uv\"",
+            ));
+        }
+        let rest = match &c.rest_mesh {
+            None => rest,
+            Some(f) => {
+                let rest_key = format!("{key}.rest_mesh");
+                let mut r = load_mesh_file(path, f, &rest_key)?;
+                same_connectivity(&mesh, &r, path, &rest_key, f, "the cloth mesh")?;
+                apply_transform(&mut r, &c.transform, path, &key)?;
+                Some(r.positions)
             }
         };
         let spin = v3(c.spin);
@@ -448,7 +1077,36 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
     }
     for (oi, o) in file.obstacle.iter().enumerate() {
         let key = format!("obstacle[{oi}] '{}'", o.name);
+        let mut keyframes = None;
         let mut mesh = match (&o.mesh, &o.sphere, &o.cuboid, &o.cylinder) {
+            _ if o.mesh_sequence.is_some()
+                && [
+                    o.mesh.is_some(),
+                    o.sphere.is_some(),
+                    o.cuboid.is_some(),
+                    o.cylinder.is_some(),
+                ]
+                .contains(&true) =>
+            {
+                return Err(invalid(
+                    path,
+                    key,
+                    "give exactly one of `mesh`, `mesh_sequence`, `sphere`, `box` or `cylinder`",
+                ))
+            }
+            _ if o.mesh_sequence.is_some() => {
+                if o.motion.kind.as_deref().is_some_and(|k| k != "fixed") {
+                    return Err(invalid(
+                        path,
+                        format!("{key}.motion"),
+                        "a mesh_sequence obstacle moves with its frames; leave `motion` out",
+                    ));
+                }
+                let seq = o.mesh_sequence.as_ref().expect("checked");
+                let (m, k) = load_sequence(path, seq, &o.transform, &key)?;
+                keyframes = Some(k);
+                m
+            }
             (Some(f), None, None, None) => load_mesh_file(path, f, &key)?,
             (None, Some(s), None, None) => {
                 if !pos(s.radius) || s.subdivisions > 7 {
@@ -490,17 +1148,22 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                 return Err(invalid(
                     path,
                     key,
-                    "give exactly one of `mesh`, `sphere`, `box` or `cylinder`",
+                    "give exactly one of `mesh`, `mesh_sequence`, `sphere`, `box` or `cylinder`",
                 ))
             }
         };
-        apply_transform(&mut mesh, &o.transform, path, &key)?;
+        let motion = match keyframes {
+            // The frames are already transformed.
+            Some(k) => Motion::Sequence(k),
+            None => {
+                apply_transform(&mut mesh, &o.transform, path, &key)?;
+                motion(&o.motion, path, &key)?
+            }
+        };
         objects.push(ObjectSpec {
             name: o.name.clone(),
             mesh,
-            kind: ObjectKind::Obstacle {
-                motion: motion(&o.motion, path, &key)?,
-            },
+            kind: ObjectKind::Obstacle { motion },
         });
     }
     let mut pins = Vec::new();
@@ -530,6 +1193,9 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             (None, None) => {}
             _ => return Err(invalid(path, key, "give both box_min and box_max")),
         }
+        if let Some(which) = &p.boundary {
+            vertices.extend(boundary_vertices(&objects[object].mesh, which, path, &key)?);
+        }
         vertices.sort_unstable();
         vertices.dedup();
         pins.push(PinSpec {
@@ -554,9 +1220,9 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             max_rollbacks: file.contact.max_rollbacks,
         },
         time: TimeConfig {
-            internal_step: file.time.internal_step,
+            internal_step,
             beta: file.time.beta,
-            steps_per_window: file.time.steps_per_window,
+            steps_per_window,
         },
         limits: LimitsConfig::default(),
         partitions: file.partitions.max(1),
@@ -588,6 +1254,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             formats,
             checkpoint_every: file.output.checkpoint_every,
         },
+        camera: file.camera.as_ref().map(|c| camera(c, path)).transpose()?,
         overrides: overrides.to_vec(),
         fingerprint: String::new(),
     })

@@ -32,6 +32,9 @@ pub struct SceneFile {
     pub obstacle: Vec<ObstacleSection>,
     #[serde(default)]
     pub pin: Vec<PinSection>,
+    /// Where a renderer looks from (optional).
+    #[serde(default)]
+    pub camera: Option<CameraSection>,
     /// Partitions of the internal forces (results never depend on it).
     #[serde(default = "default_partitions")]
     pub partitions: usize,
@@ -57,9 +60,13 @@ pub struct TimeSection {
     /// Safety factor of the derived step, in (0, 0.5].
     #[serde(default = "default_beta")]
     pub beta: f64,
-    /// Internal steps per collision window.
-    #[serde(default = "default_steps_per_window")]
-    pub steps_per_window: u64,
+    /// Internal steps per collision window (absent = 100, or derived from
+    /// `window` and `internal_step`).
+    #[serde(default)]
+    pub steps_per_window: Option<u64>,
+    /// Collision window length (s), an alternative to `steps_per_window`.
+    #[serde(default)]
+    pub window: Option<f64>,
 }
 
 fn default_end() -> f64 {
@@ -68,9 +75,9 @@ fn default_end() -> f64 {
 fn default_beta() -> f64 {
     0.3
 }
-fn default_steps_per_window() -> u64 {
-    100
-}
+/// Internal steps per window when neither `steps_per_window` nor `window`
+/// is given.
+pub const DEFAULT_STEPS_PER_WINDOW: u64 = 100;
 
 impl Default for TimeSection {
     fn default() -> Self {
@@ -78,7 +85,8 @@ impl Default for TimeSection {
             end: default_end(),
             internal_step: None,
             beta: default_beta(),
-            steps_per_window: default_steps_per_window(),
+            steps_per_window: None,
+            window: None,
         }
     }
 }
@@ -190,6 +198,13 @@ pub struct ClothSection {
     /// Generator, when no mesh file is given.
     #[serde(default)]
     pub grid: Option<GridSection>,
+    /// Ribbon generator: a strip along a polyline or tied in a knot, resting
+    /// on its flat strip (`scene/ribbon.rs`).
+    #[serde(default)]
+    pub ribbon: Option<super::ribbon::RibbonSection>,
+    /// Tube generator: an open sleeve (a sheet closed around an axis).
+    #[serde(default)]
+    pub tube: Option<TubeSection>,
     #[serde(default)]
     pub transform: Transform,
     /// Initial velocity of every vertex (m/s).
@@ -200,10 +215,18 @@ pub struct ClothSection {
     pub spin: [f64; 3],
     #[serde(default)]
     pub spin_center: [f64; 3],
-    /// Rest shape: "initial" (the start shape) or "flat" (generators only:
-    /// the grid before `wave` and transform).
+    /// Rest shape: "initial" (the start shape), "flat" (generators only:
+    /// the grid before `wave` and transform, a tube at its `rest_radius`) or
+    /// "uv" (the mesh file's texture coordinates).
     #[serde(default = "default_rest")]
     pub rest: String,
+    /// With `rest = "uv"`: metres per UV unit.
+    #[serde(default)]
+    pub uv_scale: Option<f64>,
+    /// Rest shape from a mesh file with the same connectivity (relative to
+    /// the scene file; the cloth's transform applies to it too).
+    #[serde(default)]
+    pub rest_mesh: Option<String>,
     #[serde(default)]
     pub material: MaterialSection,
 }
@@ -232,6 +255,40 @@ pub struct GridSection {
     /// Number of half-waves of the perturbation along each side.
     #[serde(default = "default_wave_count")]
     pub wave_count: [f64; 2],
+    /// A round hole punched through the grid.
+    #[serde(default)]
+    pub hole: Option<HoleSection>,
+}
+
+/// An open tube (sleeve) generator.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TubeSection {
+    /// Axis end points (m).
+    pub from: [f64; 3],
+    pub to: [f64; 3],
+    /// Radius of the start shape (m).
+    pub radius: f64,
+    /// Vertices around and rings along (scaled by the scene's `size`, if set).
+    pub resolution: [usize; 2],
+    /// Radius of the rest shape (`rest = "flat"`), absent = `radius`.
+    #[serde(default)]
+    pub rest_radius: Option<f64>,
+}
+
+/// A round hole in a generated grid.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HoleSection {
+    /// Radius (m): every grid vertex closer than this to the center goes.
+    pub radius: f64,
+    /// Center as offsets (m) from the grid's center along its two sides.
+    #[serde(default)]
+    pub center: [f64; 2],
+    /// Radius of the hole in the rest shape (`rest = "flat"`), absent = `radius`;
+    /// the rest shape is remapped radially out to twice the larger radius.
+    #[serde(default)]
+    pub rest_radius: Option<f64>,
 }
 
 fn default_plane() -> String {
@@ -306,10 +363,54 @@ pub struct ObstacleSection {
     pub cuboid: Option<BoxSection>,
     #[serde(default)]
     pub cylinder: Option<CylinderSection>,
+    /// An animated mesh: frames read from files, interpolated linearly.
+    #[serde(default)]
+    pub mesh_sequence: Option<MeshSequenceSection>,
     #[serde(default)]
     pub transform: Transform,
     #[serde(default)]
     pub motion: MotionSection,
+}
+
+/// Frames of an animated obstacle (same connectivity in every file).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshSequenceSection {
+    /// Frame files in order (relative to the scene file).
+    #[serde(default)]
+    pub files: Vec<String>,
+    /// Or a pattern with `*` / `?` in the file name (`walk/f*.obj`); the
+    /// matching files are taken in name order.
+    #[serde(default)]
+    pub pattern: Option<String>,
+    /// Frames per second of the sequence.
+    pub frame_rate: f64,
+    /// Time of the first frame (s).
+    #[serde(default)]
+    pub start: f64,
+}
+
+/// Camera of a renderer (not used by the simulation).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSection {
+    /// Eye position (m).
+    pub eye: [f64; 3],
+    /// Point looked at (m).
+    pub target: [f64; 3],
+    /// Up direction.
+    #[serde(default = "default_up")]
+    pub up: [f64; 3],
+    /// Vertical field of view (degrees).
+    #[serde(default = "default_fov")]
+    pub fov_degrees: f64,
+}
+
+fn default_up() -> [f64; 3] {
+    [0.0, 1.0, 0.0]
+}
+fn default_fov() -> f64 {
+    40.0
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -375,6 +476,9 @@ pub struct MotionSection {
     /// Velocity for "translate" (m/s).
     #[serde(default)]
     pub velocity: [f64; 3],
+    /// "translate" only: moves for t < until (s), then stays; absent = forever.
+    #[serde(default)]
+    pub until: Option<f64>,
     /// Rotation axis and a point on it, for "rotate".
     #[serde(default)]
     pub axis: [f64; 3],
@@ -400,6 +504,10 @@ pub struct PinSection {
     pub box_min: Option<[f64; 3]>,
     #[serde(default)]
     pub box_max: Option<[f64; 3]>,
+    /// And/or the object's boundary vertices: "all", or "outer" (the
+    /// boundary loop of greatest length, e.g. a sheet's border, not its holes).
+    #[serde(default)]
+    pub boundary: Option<String>,
     #[serde(default)]
     pub motion: MotionSection,
 }

@@ -1,0 +1,545 @@
+//! `weft run SCENE.toml --out DIR`: simulate and write
+//!
+//! * `DIR/frames/frame_NNNNN.ply` (and `frames-obj/…obj`, `frames-vtk/…vtu`
+//!   with `DIR/frames.pvd`, as the scene's `output.formats` ask): one file per
+//!   output frame holding **all objects** (cloth and obstacles) concatenated in
+//!   input order, with per-vertex velocities in PLY and VTK. Frame k is the
+//!   committed state at the first window boundary at or after `k / frame_rate`
+//!   (its time is in `frames.jsonl`); frames come only from committed windows.
+//! * `DIR/objects.json`: each object's name, vertex and triangle ranges.
+//! * `DIR/stats.jsonl`: one JSON line per committed window (deterministic:
+//!   a resumed run writes the same bytes).
+//! * `DIR/timing.jsonl`: one JSON line per committed window with its wall-clock
+//!   time, in total and per stage.
+//! * `DIR/checkpoint.wckp`: the last checkpoint (every `output.checkpoint_every`
+//!   windows, at `--stop-after`, on SIGINT / SIGTERM / SIGUSR1, at the rollback
+//!   cap and at the end); `weft run --resume DIR` continues from it.
+//! * `DIR/manifest.json`: scene, overrides, version, command lines, machine,
+//!   status and the last good checkpoint.
+//! * `DIR/preview.mp4` or `DIR/preview.gif` and `DIR/render/`: a preview of a
+//!   completed run (skip with `--no-preview`).
+//! * standard output, last line: one JSON object with `state_hash`, `windows`,
+//!   `rollbacks`, `wall_seconds`, `complete` and more.
+//!
+//! When the rollback cap is hit, the window's start state is kept in
+//! `DIR/repro/` (positions and velocities as PLY, active layers as JSON) and
+//! checkpointed.
+
+pub mod manifest;
+pub mod outputs;
+pub mod progress;
+pub mod signals;
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use clap::Args;
+use serde::Serialize;
+use weft_io::checkpoint::{read_checkpoint, write_checkpoint, Checkpoint};
+use weft_io::scene::{load_scene, Scene};
+use weft_par::Threads;
+use weft_sim::{Engine, Executor, Serial, SimError, World};
+
+use manifest::{CheckpointRef, Machine, Manifest, SceneRef, Segment};
+use outputs::RunOutputs;
+use progress::Progress;
+use signals::StopRequest;
+
+/// The checkpoint file in a run folder.
+pub const CHECKPOINT_FILE: &str = "checkpoint.wckp";
+
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// The scene file (TOML); not given with --resume.
+    #[arg(required_unless_present = "resume")]
+    pub scene: Option<PathBuf>,
+    /// Output folder (created if missing).
+    #[arg(long, required_unless_present = "resume", conflicts_with = "resume")]
+    pub out: Option<PathBuf>,
+    /// Continue the run in DIR from its last checkpoint (only time.end may be
+    /// changed with --set).
+    #[arg(long, value_name = "DIR", conflicts_with = "scene")]
+    pub resume: Option<PathBuf>,
+    /// Override a scene value: `--set key.path=value` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
+    /// Checkpoint and exit cleanly after this much wall time (3600, 45m, 1h30m).
+    #[arg(long, value_name = "DURATION", value_parser = signals::parse_duration)]
+    pub stop_after: Option<Duration>,
+    /// Replace the outputs of an earlier run in the --out folder.
+    #[arg(long)]
+    pub overwrite: bool,
+    /// Do not render a preview when the run completes.
+    #[arg(long)]
+    pub no_preview: bool,
+    /// Worker threads (0: one per logical core). The results are the same
+    /// bits for any count.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub threads: usize,
+    /// Print nothing but the final JSON line.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// The summary printed as the last line.
+#[derive(Clone, Debug, Serialize)]
+pub struct RunSummary {
+    pub scene: String,
+    pub state_hash: String,
+    /// Whether the run reached its end time (false: stopped with a checkpoint).
+    pub complete: bool,
+    /// A signal name or `stop-after` when the run stopped early.
+    pub stopped_by: Option<String>,
+    /// The last checkpoint written, if any.
+    pub checkpoint: Option<PathBuf>,
+    pub windows: u64,
+    pub rollbacks: u64,
+    /// Wall-clock seconds of this process, and over the run and its resumes.
+    pub wall_seconds: f64,
+    pub total_wall_seconds: f64,
+    pub simulated_seconds: f64,
+    pub frames: u64,
+    pub max_depth: u32,
+    pub max_active_stencils: u64,
+    pub narrow_queries: u64,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub internal_step: f64,
+    pub eta_1: f64,
+}
+
+/// One run of a scene into an output folder.
+pub struct RunJob<'a> {
+    pub scene: &'a Scene,
+    pub out: &'a Path,
+    pub quiet: bool,
+    /// Continue from `out`'s checkpoint instead of starting fresh.
+    pub resume: bool,
+    pub stop: StopRequest,
+    /// Render `out/preview.*` when the run completes.
+    pub preview: bool,
+    pub command_line: Vec<String>,
+}
+
+pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
+    let command_line: Vec<String> = std::env::args().collect();
+    let (scene, out, resume) = match &a.resume {
+        Some(dir) => {
+            let m = Manifest::read(dir)?;
+            let mut overrides = m.overrides.clone();
+            overrides.extend(a.overrides.iter().cloned());
+            (load_scene(&m.scene.path, &overrides)?, dir.clone(), true)
+        }
+        None => {
+            let (Some(scene), Some(out)) = (&a.scene, &a.out) else {
+                bail!("give a scene and --out DIR, or --resume DIR");
+            };
+            if out.join(manifest::FILE).exists() && !a.overwrite {
+                bail!(
+                    "{} already holds a run; continue it with `weft run --resume {}`, \
+                     replace it with --overwrite, or choose another --out",
+                    out.display(),
+                    out.display()
+                );
+            }
+            (load_scene(scene, &a.overrides)?, out.clone(), false)
+        }
+    };
+    let mut stop = StopRequest::new()
+        .on_signals()
+        .context("cannot install the signal handlers")?;
+    if let Some(d) = a.stop_after {
+        stop = stop.deadline(d);
+    }
+    let job = RunJob {
+        scene: &scene,
+        out: &out,
+        quiet: a.quiet,
+        resume,
+        stop,
+        preview: !a.no_preview,
+        command_line,
+    };
+    let threads = Threads::new(a.threads).context("cannot start the worker threads")?;
+    let summary = if threads.threads() == 1 {
+        execute(job, Serial)?
+    } else {
+        execute(job, threads)?
+    };
+    println!("{}", serde_json::to_string(&summary)?);
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Runs `scene` to its end time from the start, writing outputs under `out`
+/// (no signal handling, no preview).
+pub fn simulate(scene: &Scene, out: &Path, quiet: bool) -> anyhow::Result<RunSummary> {
+    let job = RunJob {
+        scene,
+        out,
+        quiet,
+        resume: false,
+        stop: StopRequest::new(),
+        preview: false,
+        command_line: Vec::new(),
+    };
+    execute(job, Serial)
+}
+
+/// Hash of the scene text with overrides (end time excluded) and of the world
+/// it builds: what a checkpoint must match to be resumed.
+fn scene_hash(scene: &Scene, world: &World) -> String {
+    let text = format!(
+        "{}:{}",
+        scene.fingerprint,
+        weft_sim::hash::world_fingerprint(world)
+    );
+    format!("{:032x}", xxhash_rust::xxh3::xxh3_128(text.as_bytes()))
+}
+
+/// Runs a job: see the module documentation for what it writes.
+pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSummary> {
+    let started = Instant::now();
+    let (scene, out) = (job.scene, job.out);
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let world = World::build(&scene.world)?;
+    let hash = scene_hash(scene, &world);
+    let mut engine = Engine::new(world, exec)?;
+    let machine = Machine::this();
+    let (mut outputs, mut manifest, prior_wall) = if job.resume {
+        let path = out.join(CHECKPOINT_FILE);
+        if !path.exists() {
+            bail!(
+                "{} has no checkpoint to resume from ({} is missing); the run stopped before \
+                 its first checkpoint — start it again",
+                out.display(),
+                path.display()
+            );
+        }
+        let ck = read_checkpoint(&path)?;
+        remove_abandoned_temporaries(out);
+        if ck.scene_hash != hash {
+            bail!(
+                "{}: the checkpoint was made from a different scene (scene hash {} there, {} now); \
+                 the scene file, a mesh it reads or an override changed — only time.end may \
+                 change on resume",
+                path.display(),
+                ck.scene_hash,
+                hash
+            );
+        }
+        engine
+            .restore(ck.engine)
+            .with_context(|| format!("{}", path.display()))?;
+        let outputs = RunOutputs::resume(
+            out,
+            &scene.output.formats,
+            scene.output.frame_rate,
+            &ck.cursors,
+        )?;
+        let mut m = Manifest::read(out)?;
+        m.overrides = scene.overrides.clone();
+        m.end_time = scene.end_time;
+        m.segments.push(Segment {
+            started: manifest::now_utc(),
+            command_line: job.command_line.clone(),
+            from_window: engine.world.window_index,
+            machine,
+        });
+        (outputs, m, ck.wall_seconds)
+    } else {
+        let outputs = RunOutputs::create(out, &scene.output.formats, scene.output.frame_rate)?;
+        write_objects(out, &engine.world)?;
+        let m = Manifest {
+            weft_version: env!("CARGO_PKG_VERSION").into(),
+            scene: SceneRef {
+                path: std::fs::canonicalize(&scene.path).unwrap_or_else(|_| scene.path.clone()),
+                name: scene.name.clone(),
+                hash: hash.clone(),
+            },
+            overrides: scene.overrides.clone(),
+            end_time: scene.end_time,
+            status: String::new(),
+            stopped_by: None,
+            error: None,
+            last_checkpoint: None,
+            segments: vec![Segment {
+                started: manifest::now_utc(),
+                command_line: job.command_line.clone(),
+                from_window: 0,
+                machine,
+            }],
+            updated: String::new(),
+        };
+        (outputs, m, 0.0)
+    };
+    manifest.status = "running".into();
+    manifest.stopped_by = None;
+    manifest.error = None;
+    manifest.write(out)?;
+    engine.set_interrupt(job.stop.flag.clone());
+
+    let w = &engine.world;
+    if !job.quiet {
+        eprintln!(
+            "weft: {} — {} vertices, {} triangles, h_el = {:.3e} s, window = {} steps, eta_1 = {:.3e} m, {}{}",
+            scene.name,
+            w.num_vertices(),
+            w.triangles.len(),
+            w.lattice.h_el(),
+            w.lattice.steps_per_window,
+            w.schedule.eta_1,
+            engine.executor().name(),
+            if job.resume {
+                format!(", resumed at t = {:.6} s (window {})", w.time(), w.window_index)
+            } else {
+                String::new()
+            }
+        );
+    }
+    let end_tick = w.lattice.window_end_at_or_after(scene.end_time);
+    let mut progress = Progress::new(job.quiet, w.time(), engine.totals.windows, scene.end_time);
+    let mut saver = Saver {
+        out,
+        hash: &hash,
+        scene_name: &scene.name,
+        written: 0,
+        prior_wall,
+        started,
+    };
+    outputs.frames_due(&engine.world)?;
+    let mut stopped_by = None;
+    while engine.world.tick < end_tick {
+        let stats = match engine.step_window() {
+            Ok(s) => s,
+            Err(SimError::Interrupted { .. }) => {
+                stopped_by = Some(job.stop.reason().unwrap_or("interrupt"));
+                break;
+            }
+            Err(e) => {
+                outputs.flush()?;
+                if matches!(e, SimError::RollbackCap { .. }) {
+                    // The engine is back at the window start: the last commit.
+                    let _ = save_repro(out, &engine.world);
+                    if let Ok(r) = saver.save(&engine, &mut outputs) {
+                        manifest.last_checkpoint = Some(r);
+                    }
+                }
+                progress.finish();
+                manifest.status = "failed".into();
+                manifest.error = Some(e.to_string());
+                let _ = manifest.write(out);
+                return Err(e.into());
+            }
+        };
+        outputs.record_window(&stats)?;
+        outputs.frames_due(&engine.world)?;
+        progress.update(&progress::Snapshot {
+            time: engine.world.time(),
+            windows: engine.totals.windows,
+            rollbacks: engine.totals.rollbacks,
+            active: stats.active_stencils,
+            depth: stats.max_depth,
+        });
+        let every = scene.output.checkpoint_every;
+        if every > 0 && engine.world.window_index % every == 0 && engine.world.tick < end_tick {
+            manifest.last_checkpoint = Some(saver.save(&engine, &mut outputs)?);
+            manifest.write(out)?;
+        }
+        if job.stop.requested() {
+            stopped_by = Some(job.stop.reason().unwrap_or("interrupt"));
+            break;
+        }
+    }
+    progress.finish();
+    // Also at the end: a completed run can be extended with --resume.
+    manifest.last_checkpoint = Some(saver.save(&engine, &mut outputs)?);
+    let complete = stopped_by.is_none();
+    manifest.status = if complete { "complete" } else { "stopped" }.into();
+    manifest.stopped_by = stopped_by.map(String::from);
+    manifest.write(out)?;
+    if !job.quiet {
+        if let Some(why) = stopped_by {
+            eprintln!(
+                "weft: stopped by {why} at t = {:.6} s (window {}); continue with `weft run --resume {}`",
+                engine.world.time(),
+                engine.world.window_index,
+                out.display()
+            );
+        }
+    }
+    if complete && job.preview {
+        preview(out, job.quiet, scene_camera(scene));
+    }
+    let w = &engine.world;
+    let wall = started.elapsed().as_secs_f64();
+    Ok(RunSummary {
+        scene: scene.name.clone(),
+        state_hash: engine.state_hash(),
+        complete,
+        stopped_by: stopped_by.map(String::from),
+        checkpoint: Some(out.join(CHECKPOINT_FILE)),
+        windows: engine.totals.windows,
+        rollbacks: engine.totals.rollbacks,
+        wall_seconds: wall,
+        total_wall_seconds: prior_wall + wall,
+        simulated_seconds: w.time(),
+        frames: outputs.frames_written(),
+        max_depth: engine.totals.max_depth,
+        max_active_stencils: engine.totals.max_active_stencils,
+        narrow_queries: engine.totals.narrow_queries,
+        vertices: w.num_vertices(),
+        triangles: w.triangles.len(),
+        internal_step: w.lattice.h_el(),
+        eta_1: w.schedule.eta_1,
+    })
+}
+
+/// Writes checkpoints of one process.
+struct Saver<'a> {
+    out: &'a Path,
+    hash: &'a str,
+    scene_name: &'a str,
+    /// Checkpoints written so far (numbers the `checkpoint-rename` failpoint).
+    written: u64,
+    prior_wall: f64,
+    started: Instant,
+}
+
+impl Saver<'_> {
+    /// Flushes the outputs and checkpoints the engine's committed state.
+    fn save<E: Executor>(
+        &mut self,
+        engine: &Engine<E>,
+        outputs: &mut RunOutputs,
+    ) -> anyhow::Result<CheckpointRef> {
+        let ck = Checkpoint {
+            weft_version: env!("CARGO_PKG_VERSION").into(),
+            scene_name: self.scene_name.into(),
+            scene_hash: self.hash.into(),
+            engine: engine.state(),
+            cursors: outputs.cursors()?,
+            wall_seconds: self.prior_wall + self.started.elapsed().as_secs_f64(),
+        };
+        self.written += 1;
+        let n = self.written;
+        write_checkpoint(&self.out.join(CHECKPOINT_FILE), &ck, || {
+            weft_sim::failpoint::hit("checkpoint-rename", n)
+        })?;
+        let w = &engine.world;
+        Ok(CheckpointRef {
+            file: CHECKPOINT_FILE.into(),
+            window: w.window_index,
+            tick: w.tick,
+            time: w.time(),
+            written: manifest::now_utc(),
+        })
+    }
+}
+
+/// Removes temporary checkpoint files a crashed process left behind (the
+/// write never reached its rename, so the checkpoint itself is the previous one).
+fn remove_abandoned_temporaries(out: &Path) {
+    let prefix = format!(".{CHECKPOINT_FILE}.");
+    if let Ok(entries) = std::fs::read_dir(out) {
+        for e in entries.flatten() {
+            let name = e.file_name();
+            let name = name.to_string_lossy();
+            if name.starts_with(&prefix) && name.ends_with(".tmp") {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
+}
+
+/// `objects.json`: names and ranges of the objects in the frame files.
+fn write_objects(out: &Path, world: &World) -> anyhow::Result<()> {
+    let objects: Vec<_> = world
+        .objects
+        .iter()
+        .map(|o| {
+            serde_json::json!({
+                "name": o.name,
+                "vertices": [o.vertices.start, o.vertices.end],
+                "triangles": [o.triangles.start, o.triangles.end],
+                "cloth": o.is_cloth,
+            })
+        })
+        .collect();
+    let text = serde_json::to_string_pretty(&serde_json::json!({ "objects": objects }))? + "\n";
+    weft_io::write_atomic(&out.join("objects.json"), text.as_bytes())?;
+    Ok(())
+}
+
+/// The scene's `[camera]` as a render camera.
+pub fn scene_camera(scene: &Scene) -> Option<weft_render::Camera> {
+    scene.camera.as_ref().map(|c| weft_render::Camera {
+        eye: glam::DVec3::from_array(c.eye),
+        target: glam::DVec3::from_array(c.target),
+        up: glam::DVec3::from_array(c.up),
+        fov_y_degrees: c.fov_degrees,
+    })
+}
+
+/// The `[camera]` of the scene a run folder was made from, if its manifest
+/// and scene can still be read.
+pub fn camera_of_run(dir: &Path) -> Option<weft_render::Camera> {
+    let m = Manifest::read(dir).ok()?;
+    let scene = load_scene(&m.scene.path, &m.overrides).ok()?;
+    scene_camera(&scene)
+}
+
+/// Renders the preview of a completed run; a failure is reported, not fatal
+/// (the simulation's outputs are already complete).
+fn preview(out: &Path, quiet: bool, camera: Option<weft_render::Camera>) {
+    let opts = weft_render::RenderOptions {
+        width: 480,
+        height: 360,
+        camera,
+        ..Default::default()
+    };
+    match weft_render::render_run(out, &opts) {
+        Ok(r) if !quiet => {
+            for w in &r.warnings {
+                eprintln!("weft: preview: {w}");
+            }
+            if let Some(p) = &r.preview {
+                eprintln!(
+                    "weft: preview {} ({} frames in {:.1} s)",
+                    p.display(),
+                    r.frames.len(),
+                    r.seconds
+                );
+            }
+        }
+        Ok(_) => {}
+        Err(e) => eprintln!("weft: warning: no preview: {e}"),
+    }
+}
+
+/// Keeps the state of the window that could not commit, for a reproduction.
+fn save_repro(out: &Path, world: &World) -> anyhow::Result<()> {
+    let dir = out.join("repro");
+    std::fs::create_dir_all(&dir)?;
+    weft_io::write_ply(
+        &dir.join("window_start.ply"),
+        &world.x,
+        &world.triangles,
+        Some(&world.v),
+    )?;
+    let layers: Vec<_> = world
+        .layers
+        .stencils
+        .iter()
+        .map(|(k, s)| serde_json::json!({"key": k, "depth": s.depth, "calm_windows": s.calm_windows}))
+        .collect();
+    let info = serde_json::json!({
+        "tick": world.tick,
+        "time": world.time(),
+        "window": world.window_index,
+        "layers": layers,
+    });
+    weft_io::write_atomic(&dir.join("window_start.json"), info.to_string().as_bytes())?;
+    Ok(())
+}

@@ -1,0 +1,251 @@
+//! The files a run writes while it goes: frames in every requested format,
+//! `frames.jsonl`, `stats.jsonl`, `timing.jsonl` and, for VTK, `frames.pvd`.
+//!
+//! Everything but `timing.jsonl` is a function of the committed states only,
+//! so a run resumed from a checkpoint rewrites the same bytes: on resume the
+//! line files are cut back to the lengths the checkpoint recorded and frames
+//! after its frame cursor are removed, then writing simply continues.
+
+use std::fs::{File, OpenOptions};
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use serde::{Deserialize, Serialize};
+use weft_io::checkpoint::OutputCursors;
+use weft_io::scene::FrameFormat;
+use weft_sim::{WindowStats, World};
+
+/// The folder (under the output folder) that frames of `format` go to.
+pub fn frames_folder(format: FrameFormat) -> &'static str {
+    match format {
+        FrameFormat::Ply => "frames",
+        FrameFormat::Obj => "frames-obj",
+        FrameFormat::Vtk => "frames-vtk",
+    }
+}
+
+/// The VTK series index, in the output folder.
+pub const PVD_FILE: &str = "frames.pvd";
+
+/// One line of `frames.jsonl`.
+#[derive(Debug, Serialize, Deserialize)]
+pub struct FrameRecord {
+    pub frame: u64,
+    /// Path of the frame in the first listed format, relative to the folder.
+    pub file: String,
+    pub time: f64,
+    pub window: u64,
+}
+
+pub struct RunOutputs {
+    out: PathBuf,
+    formats: Vec<FrameFormat>,
+    frame_dt: f64,
+    stats: BufWriter<File>,
+    timing: BufWriter<File>,
+    frames: BufWriter<File>,
+    next_frame: u64,
+    /// (time, file relative to the folder) of every VTK frame so far.
+    pvd: Vec<(f64, String)>,
+}
+
+impl RunOutputs {
+    /// Starts the files of a fresh run (replacing any of a previous one).
+    pub fn create(out: &Path, formats: &[FrameFormat], frame_rate: f64) -> anyhow::Result<Self> {
+        for &f in formats {
+            let dir = out.join(frames_folder(f));
+            std::fs::create_dir_all(&dir)
+                .with_context(|| format!("cannot create {}", dir.display()))?;
+        }
+        let open = |name: &str| -> anyhow::Result<BufWriter<File>> {
+            let p = out.join(name);
+            let f = File::create(&p).with_context(|| format!("cannot create {}", p.display()))?;
+            Ok(BufWriter::new(f))
+        };
+        Ok(Self {
+            out: out.to_path_buf(),
+            formats: formats.to_vec(),
+            frame_dt: 1.0 / frame_rate,
+            stats: open("stats.jsonl")?,
+            timing: open("timing.jsonl")?,
+            frames: open("frames.jsonl")?,
+            next_frame: 0,
+            pvd: Vec::new(),
+        })
+    }
+
+    /// Continues the files of a run at the checkpoint's `cursors`.
+    pub fn resume(
+        out: &Path,
+        formats: &[FrameFormat],
+        frame_rate: f64,
+        cursors: &OutputCursors,
+    ) -> anyhow::Result<Self> {
+        let reopen = |name: &str, len: u64| -> anyhow::Result<BufWriter<File>> {
+            let p = out.join(name);
+            let f = OpenOptions::new()
+                .read(true)
+                .write(true)
+                .open(&p)
+                .with_context(|| format!("cannot reopen {} to continue it", p.display()))?;
+            let have = f.metadata()?.len();
+            if have < len {
+                bail!(
+                    "{} holds {have} bytes but the checkpoint recorded {len}: the run folder \
+                     was modified after the checkpoint, cannot continue it byte for byte",
+                    p.display()
+                );
+            }
+            // Lines written after the checkpoint are written again.
+            f.set_len(len)?;
+            let mut f = f;
+            std::io::Seek::seek(&mut f, std::io::SeekFrom::End(0))?;
+            Ok(BufWriter::new(f))
+        };
+        let stats = reopen("stats.jsonl", cursors.stats_bytes)?;
+        let timing = reopen("timing.jsonl", cursors.timing_bytes)?;
+        let frames = reopen("frames.jsonl", cursors.frames_bytes)?;
+        let mut pvd = Vec::new();
+        let text = std::fs::read_to_string(out.join("frames.jsonl"))?;
+        for (n, line) in text.lines().enumerate() {
+            let r: FrameRecord = serde_json::from_str(line).with_context(|| {
+                format!(
+                    "{}:{}: malformed frame record",
+                    out.join("frames.jsonl").display(),
+                    n + 1
+                )
+            })?;
+            pvd.push((r.time, vtk_name(r.frame)));
+        }
+        if pvd.len() as u64 != cursors.next_frame {
+            bail!(
+                "{} lists {} frames, the checkpoint expects {}",
+                out.join("frames.jsonl").display(),
+                pvd.len(),
+                cursors.next_frame
+            );
+        }
+        for &f in formats {
+            let dir = out.join(frames_folder(f));
+            std::fs::create_dir_all(&dir)?;
+            remove_frames_from(&dir, f, cursors.next_frame)?;
+        }
+        Ok(Self {
+            out: out.to_path_buf(),
+            formats: formats.to_vec(),
+            frame_dt: 1.0 / frame_rate,
+            stats,
+            timing,
+            frames,
+            next_frame: cursors.next_frame,
+            pvd: if formats.contains(&FrameFormat::Vtk) {
+                pvd
+            } else {
+                Vec::new()
+            },
+        })
+    }
+
+    pub fn frames_written(&self) -> u64 {
+        self.next_frame
+    }
+
+    /// Appends a committed window's lines.
+    pub fn record_window(&mut self, stats: &WindowStats) -> anyhow::Result<()> {
+        writeln!(self.stats, "{}", serde_json::to_string(stats)?)?;
+        writeln!(self.timing, "{}", serde_json::to_string(&stats.timing())?)?;
+        Ok(())
+    }
+
+    /// Writes every frame due at the world's (committed) time: frame k is the
+    /// first committed state at or after `k / frame_rate`.
+    pub fn frames_due(&mut self, world: &World) -> anyhow::Result<()> {
+        while world.time() + 1e-12 >= self.next_frame as f64 * self.frame_dt {
+            self.write_frame(world)?;
+        }
+        Ok(())
+    }
+
+    fn write_frame(&mut self, world: &World) -> anyhow::Result<()> {
+        let k = self.next_frame;
+        let mut first = None;
+        for &format in &self.formats {
+            let rel = format!("{}/{}", frames_folder(format), frame_name(k, format));
+            let path = self.out.join(&rel);
+            match format {
+                FrameFormat::Ply => {
+                    weft_io::write_ply(&path, &world.x, &world.triangles, Some(&world.v))?
+                }
+                FrameFormat::Obj => weft_io::write_obj(&path, &world.x, &world.triangles)?,
+                FrameFormat::Vtk => {
+                    weft_io::vtk::write_vtu(&path, &world.x, &world.triangles, Some(&world.v))?;
+                    self.pvd.push((world.time(), rel.clone()));
+                    weft_io::vtk::write_pvd(&self.out.join(PVD_FILE), &self.pvd)?;
+                }
+            }
+            first.get_or_insert(rel);
+        }
+        let rec = FrameRecord {
+            frame: k,
+            file: first.unwrap_or_default(),
+            time: world.time(),
+            window: world.window_index,
+        };
+        writeln!(self.frames, "{}", serde_json::to_string(&rec)?)?;
+        self.next_frame += 1;
+        Ok(())
+    }
+
+    /// Flushes every file and says where each stands.
+    pub fn cursors(&mut self) -> anyhow::Result<OutputCursors> {
+        self.flush()?;
+        let len =
+            |w: &BufWriter<File>| -> anyhow::Result<u64> { Ok(w.get_ref().metadata()?.len()) };
+        Ok(OutputCursors {
+            next_frame: self.next_frame,
+            stats_bytes: len(&self.stats)?,
+            timing_bytes: len(&self.timing)?,
+            frames_bytes: len(&self.frames)?,
+        })
+    }
+
+    pub fn flush(&mut self) -> anyhow::Result<()> {
+        self.stats.flush()?;
+        self.timing.flush()?;
+        self.frames.flush()?;
+        Ok(())
+    }
+}
+
+fn frame_name(k: u64, format: FrameFormat) -> String {
+    format!("frame_{k:05}.{}", format.extension())
+}
+
+fn vtk_name(k: u64) -> String {
+    format!(
+        "{}/{}",
+        frames_folder(FrameFormat::Vtk),
+        frame_name(k, FrameFormat::Vtk)
+    )
+}
+
+/// Removes `frame_NNNNN.EXT` files with `NNNNN >= from` (written after the
+/// checkpoint by the run being resumed; they are written again).
+fn remove_frames_from(dir: &Path, format: FrameFormat, from: u64) -> anyhow::Result<()> {
+    let ext = format!(".{}", format.extension());
+    for entry in std::fs::read_dir(dir)? {
+        let entry = entry?;
+        let name = entry.file_name();
+        let Some(name) = name.to_str() else { continue };
+        let index = name
+            .strip_prefix("frame_")
+            .and_then(|r| r.strip_suffix(ext.as_str()))
+            .and_then(|n| n.parse::<u64>().ok());
+        if index.is_some_and(|k| k >= from) {
+            std::fs::remove_file(entry.path())
+                .with_context(|| format!("cannot remove {}", entry.path().display()))?;
+        }
+    }
+    Ok(())
+}

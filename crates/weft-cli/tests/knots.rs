@@ -1,0 +1,267 @@
+//! The knot scenes `scenes/reef-knot.toml` and `scenes/bowline.toml`: small
+//! runs that tighten the knots with no intersecting triangles in any frame
+//! and real contact work in the stats; the start geometry at the published
+//! sizes; the pins at the rope ends; and the errors of bad `ribbon` sections.
+
+use std::path::{Path, PathBuf};
+
+use weft_cli::commands::info::scene_info;
+use weft_cli::commands::run::simulate;
+use weft_geom::intersections::mesh_self_intersections;
+use weft_geom::ribbon::min_clearance;
+use weft_io::scene::{load_scene, parse_scene, Scene};
+use weft_sim::{ObjectKind, WindowStats};
+
+fn scene_path(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes")
+        .join(name)
+}
+
+fn load(name: &str, overrides: &[&str]) -> Scene {
+    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    load_scene(&scene_path(name), &o).unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
+/// Runs `name` at `size` vertices; checks every frame for intersecting
+/// triangles and the stats for contact work; returns the stats.
+fn run_small(name: &str, size: usize) -> Vec<WindowStats> {
+    let scene = load(name, &[&format!("size={size}")]);
+    let out = tempfile::tempdir().unwrap();
+    let started = std::time::Instant::now();
+    let summary = simulate(&scene, out.path(), true).unwrap();
+    let wall = started.elapsed().as_secs_f64();
+    assert!(summary.complete, "{name}: the run stopped early");
+    let mut frames: Vec<PathBuf> = std::fs::read_dir(out.path().join("frames"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "ply"))
+        .collect();
+    frames.sort();
+    let expected_frames = (scene.end_time * scene.output.frame_rate) as usize;
+    assert!(
+        frames.len() >= expected_frames,
+        "{name}: {} frames, expected at least {expected_frames}",
+        frames.len()
+    );
+    for f in &frames {
+        let m = weft_io::read_mesh(f).unwrap().mesh;
+        assert!(m.num_vertices() > 0);
+        let hits = mesh_self_intersections(&m.positions, &m.triangles);
+        assert!(
+            hits.is_empty(),
+            "{}: intersecting triangles {hits:?}",
+            f.display()
+        );
+    }
+    let text = std::fs::read_to_string(out.path().join("stats.jsonl")).unwrap();
+    let stats: Vec<WindowStats> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let rollbacks: u64 = stats.iter().map(|s| u64::from(s.rollbacks)).sum();
+    let depth = stats.iter().map(|s| s.max_depth).max().unwrap_or(0);
+    let active = stats.iter().filter(|s| s.active_stencils > 0).count();
+    let share = active as f64 / stats.len() as f64;
+    println!(
+        "{name} at size {size}: {} vertices, {} windows, {rollbacks} rollbacks, max depth {depth}, \
+         contact in {:.0} % of windows, {wall:.1} s wall",
+        summary.vertices,
+        stats.len(),
+        100.0 * share
+    );
+    assert_eq!(stats.len() as u64, summary.windows);
+    assert!(rollbacks >= 1, "{name}: no rollback");
+    assert!(depth >= 2, "{name}: max layer depth {depth}");
+    assert!(
+        share >= 0.3,
+        "{name}: contact in only {:.0} % of windows",
+        100.0 * share
+    );
+    stats
+}
+
+#[test]
+fn reef_knot_tightens_at_a_small_size() {
+    let stats = run_small("reef-knot.toml", 400);
+    // The pull ends at 0.4 s; the knot is tight after it: contact in most
+    // windows of the hold.
+    let hold: Vec<_> = stats.iter().filter(|s| s.time > 0.4).collect();
+    let touching = hold.iter().filter(|s| s.active_stencils > 0).count();
+    assert!(
+        touching * 2 > hold.len(),
+        "{touching} of {} hold windows",
+        hold.len()
+    );
+}
+
+#[test]
+fn bowline_sets_at_a_small_size() {
+    let stats = run_small("bowline.toml", 500);
+    let hold: Vec<_> = stats.iter().filter(|s| s.time > 0.75).collect();
+    let touching = hold.iter().filter(|s| s.active_stencils > 0).count();
+    assert!(
+        touching * 2 > hold.len(),
+        "{touching} of {} hold windows",
+        hold.len()
+    );
+}
+
+/// At the published sizes (as written): the vertex count, the initial strain
+/// `weft info` reports, and the clearance against contact.thickness.
+#[test]
+fn knot_scenes_start_unstrained_and_clear_at_the_published_sizes() {
+    for (name, paper) in [("reef-knot.toml", 10_642.0), ("bowline.toml", 3_995.0)] {
+        let scene = load(name, &[]);
+        let info = scene_info(&scene).unwrap();
+        assert!(
+            (info.vertices as f64 / paper - 1.0).abs() < 0.01,
+            "{name}: {} vertices",
+            info.vertices
+        );
+        assert!(
+            info.max_initial_strain <= 0.01,
+            "{name}: initial strain {}",
+            info.max_initial_strain
+        );
+        let thickness = scene.world.contact.thickness;
+        assert_eq!(info.contact_thickness, thickness, "{name}: eta_1 clamped");
+        let mesh = &scene.world.objects[0].mesh;
+        if let Some(c) = min_clearance(&mesh.positions, &mesh.triangles, thickness) {
+            panic!("{name}: parts {c:?} closer than {thickness}");
+        }
+    }
+}
+
+/// The pins catch the rope ends (and only them) at any size.
+#[test]
+fn pins_hold_the_rope_ends_at_any_size() {
+    for size in [400, 2000] {
+        let scene = load("reef-knot.toml", &[&format!("size={size}")]);
+        let positions = &scene.world.objects[0].mesh.positions;
+        assert_eq!(scene.world.pins.len(), 2);
+        for pin in &scene.world.pins {
+            // Both ends of one rope: the last 5 mm at x = -24 cm or +24 cm,
+            // on both legs (y = -2 cm and +2 cm).
+            let p: Vec<_> = pin
+                .vertices
+                .iter()
+                .map(|&v| positions[v as usize])
+                .collect();
+            assert!(p.iter().all(|q| q.x.abs() > 0.234), "{size}: {}", pin.name);
+            assert!(p.iter().all(|q| q.x.signum() == p[0].x.signum()));
+            assert!(p.iter().any(|q| q.y > 0.01) && p.iter().any(|q| q.y < -0.01));
+        }
+    }
+    for size in [500, 2500] {
+        let scene = load("bowline.toml", &[&format!("size={size}")]);
+        let positions = &scene.world.objects[0].mesh.positions;
+        assert_eq!(scene.world.pins.len(), 3);
+        for pin in &scene.world.pins {
+            assert!(
+                !pin.vertices.is_empty(),
+                "{size}: pin {} is empty",
+                pin.name
+            );
+            // One region each: the end rows, or the lowest 5 mm of the
+            // fixed loop (about 7 cm of its bend).
+            let first = positions[pin.vertices[0] as usize];
+            for &v in &pin.vertices {
+                let d = (positions[v as usize] - first).length();
+                assert!(d < 0.08, "{size}: pin {} spans {d} m", pin.name);
+            }
+        }
+        // The standing end is the top row, the tail the last row.
+        let n = positions.len() as u32;
+        assert!(scene.world.pins[0].vertices.contains(&0));
+        assert!(scene.world.pins[1].vertices.contains(&(n - 1)));
+    }
+}
+
+fn parse(ribbon: &str) -> Result<Scene, String> {
+    let text = format!(
+        "version = 1\n[contact]\nthickness = 4e-4\n[[cloth]]\nname = \"r\"\nribbon = {ribbon}\n"
+    );
+    parse_scene(&text, Path::new("ribbon-test.toml"), &[]).map_err(|e| e.to_string())
+}
+
+#[test]
+fn bad_ribbon_sections_name_the_file_and_key() {
+    let cases = [
+        ("{ knot = \"reef\", width = 0.0 }", "ribbon.width"),
+        ("{ knot = \"reef\", width = -1.0 }", "ribbon.width"),
+        ("{ knot = \"granny\", width = 0.01 }", "ribbon.knot"),
+        (
+            "{ knot = \"reef\", width = 0.01, across = 1 }",
+            "ribbon.across",
+        ),
+        (
+            "{ knot = \"reef\", width = 0.01, clearance = 0.005 }",
+            "ribbon.clearance",
+        ),
+        (
+            "{ knot = \"bowline\", width = 0.01, clearance = -1e-3 }",
+            "ribbon.clearance",
+        ),
+        (
+            "{ knot = \"reef\", width = 0.01, across = 12, clearance = 2e-3 }",
+            "ribbon.clearance",
+        ),
+        (
+            "{ knot = \"reef\", points = [[0, 0, 0], [1, 0, 0]], width = 0.01 }",
+            "ribbon",
+        ),
+        ("{ width = 0.01 }", "ribbon"),
+        ("{ points = [[0, 0, 0]], width = 0.01 }", "ribbon.points"),
+        (
+            "{ knot = \"reef\", width = 0.01, smooth = true }",
+            "ribbon.smooth",
+        ),
+    ];
+    for (ribbon, key) in cases {
+        let e = parse(ribbon).expect_err(ribbon);
+        assert!(e.starts_with("ribbon-test.toml"), "{ribbon}: {e}");
+        assert!(e.contains(&format!("cloth[0] 'r'.{key}")), "{ribbon}: {e}");
+    }
+    let e = parse("{ knot = \"reef\", width = 0.01, colour = 1 }").unwrap_err();
+    assert!(e.contains("colour"), "{e}");
+    // A ribbon and a grid in one cloth.
+    let text = "version = 1\n[[cloth]]\nname = \"r\"\nribbon = { knot = \"reef\", width = 0.01 }\n\
+                grid = { size = [1, 1], resolution = [3, 3] }\n";
+    let e = parse_scene(text, Path::new("ribbon-test.toml"), &[])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("exactly one of"), "{e}");
+}
+
+#[test]
+fn polyline_ribbon_rests_on_its_flat_strip() {
+    let s = parse(
+        "{ points = [[0, 0, 0], [0.1, 0, 0], [0.1, 0.1, 0.05]], width = 0.01, smooth = true }",
+    )
+    .unwrap();
+    let obj = &s.world.objects[0];
+    let ObjectKind::Cloth {
+        rest: Some(rest), ..
+    } = &obj.kind
+    else {
+        panic!("a ribbon has a rest shape");
+    };
+    assert_eq!(rest.len(), obj.mesh.num_vertices());
+    assert!(rest.iter().all(|p| p.z == 0.0));
+    // 3 across by default, spacing along about the spacing across.
+    let rows = obj.mesh.num_vertices() / 3;
+    assert_eq!(rows * 3, obj.mesh.num_vertices());
+    let length = rest.last().unwrap().x;
+    let spacing = length / (rows - 1) as f64;
+    assert!((spacing / 0.005 - 1.0).abs() < 0.1, "spacing {spacing}");
+    // `size` counts ribbon vertices.
+    let text = "version = 1\nsize = 600\n[[cloth]]\nname = \"r\"\n\
+                ribbon = { points = [[0, 0, 0], [0.3, 0, 0]], width = 0.01 }\n";
+    let s = parse_scene(text, Path::new("ribbon-test.toml"), &[]).unwrap();
+    let n = s.world.objects[0].mesh.num_vertices();
+    assert!(
+        (n as f64 / 600.0 - 1.0).abs() < 0.05,
+        "{n} vertices for size 600"
+    );
+}

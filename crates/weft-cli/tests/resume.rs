@@ -1,0 +1,374 @@
+//! Checkpoints and resume, end to end through the `weft` binary: a run
+//! stopped anywhere — at deterministic crash points (mid-window, mid-rollback,
+//! between a checkpoint's temporary write and its rename), by a real SIGKILL,
+//! by SIGTERM or by `--stop-after` — and resumed gives the same `state_hash`,
+//! the same `stats.jsonl` and `frames.jsonl` bytes and the same frame files as
+//! a run that never stopped. Corrupt and mismatched checkpoints are refused.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// A small `crumple`: contact and rollbacks within a few windows, seconds to run.
+const FIXTURE: &[&str] = &[
+    "--set",
+    "size=150",
+    "--set",
+    "time.end=0.22",
+    "--set",
+    "time.steps_per_window=25",
+    "--set",
+    "output.checkpoint_every=3",
+    "--set",
+    "output.frame_rate=60",
+    "--set",
+    "output.formats=[\"ply\",\"vtk\"]",
+];
+
+fn weft() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_weft"));
+    c.env_remove("WEFT_FAILPOINT");
+    c
+}
+
+fn fresh_run(out: &Path, failpoint: Option<&str>, extra: &[&str]) -> Output {
+    let mut c = weft();
+    c.arg("run")
+        .arg(repo().join("scenes/crumple.toml"))
+        .arg("--out")
+        .arg(out)
+        .args(FIXTURE)
+        .args(extra)
+        .args(["--quiet", "--no-preview"]);
+    if let Some(f) = failpoint {
+        c.env("WEFT_FAILPOINT", f);
+    }
+    c.output().expect("weft runs")
+}
+
+fn resume(out: &Path, extra: &[&str]) -> Output {
+    weft()
+        .arg("run")
+        .arg("--resume")
+        .arg(out)
+        .args(extra)
+        .args(["--quiet", "--no-preview"])
+        .output()
+        .expect("weft runs")
+}
+
+fn summary(o: &Output) -> serde_json::Value {
+    assert!(
+        o.status.success(),
+        "weft failed: {:?}\n{}",
+        o.status,
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let text = String::from_utf8_lossy(&o.stdout);
+    serde_json::from_str(text.lines().last().expect("a summary line")).expect("JSON summary")
+}
+
+/// Every file whose bytes a resume must reproduce.
+fn deterministic_files(out: &Path) -> BTreeMap<String, Vec<u8>> {
+    let mut files = BTreeMap::new();
+    for name in ["stats.jsonl", "frames.jsonl", "frames.pvd", "objects.json"] {
+        files.insert(name.to_string(), std::fs::read(out.join(name)).unwrap());
+    }
+    for dir in ["frames", "frames-vtk"] {
+        for e in std::fs::read_dir(out.join(dir)).unwrap() {
+            let e = e.unwrap();
+            let name = format!("{dir}/{}", e.file_name().to_string_lossy());
+            files.insert(name, std::fs::read(e.path()).unwrap());
+        }
+    }
+    files
+}
+
+struct Reference {
+    _dir: tempfile::TempDir,
+    hash: String,
+    files: BTreeMap<String, Vec<u8>>,
+    /// Rollbacks per committed window.
+    rollbacks: Vec<u64>,
+}
+
+/// The uninterrupted run, once per test binary.
+fn reference() -> &'static Reference {
+    static R: OnceLock<Reference> = OnceLock::new();
+    R.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let s = summary(&fresh_run(dir.path(), None, &[]));
+        assert_eq!(s["complete"], true);
+        let files = deterministic_files(dir.path());
+        let rollbacks: Vec<u64> = String::from_utf8_lossy(&files["stats.jsonl"])
+            .lines()
+            .map(|l| {
+                let v: serde_json::Value = serde_json::from_str(l).unwrap();
+                v["rollbacks"].as_u64().unwrap()
+            })
+            .collect();
+        assert!(
+            rollbacks.iter().sum::<u64>() >= 3,
+            "the fixture needs rollbacks after its first checkpoint: {rollbacks:?}"
+        );
+        Reference {
+            hash: s["state_hash"].as_str().unwrap().to_string(),
+            files,
+            rollbacks,
+            _dir: dir,
+        }
+    })
+}
+
+fn assert_same_as_reference(out: &Path, s: &serde_json::Value) {
+    let r = reference();
+    assert_eq!(s["complete"], true);
+    assert_eq!(s["state_hash"].as_str().unwrap(), r.hash);
+    let files = deterministic_files(out);
+    assert_eq!(
+        files.keys().collect::<Vec<_>>(),
+        r.files.keys().collect::<Vec<_>>(),
+        "the same files"
+    );
+    for (name, bytes) in &files {
+        assert!(
+            bytes == &r.files[name],
+            "{name} differs from the uninterrupted run"
+        );
+    }
+}
+
+fn crash_and_resume(failpoint: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let o = fresh_run(dir.path(), Some(failpoint), &[]);
+    assert_eq!(
+        o.status.code(),
+        Some(weft_sim::failpoint::EXIT_CODE),
+        "{failpoint} was not reached: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let s = summary(&resume(dir.path(), &[]));
+    assert_same_as_reference(dir.path(), &s);
+}
+
+#[test]
+fn resume_after_a_crash_mid_window() {
+    crash_and_resume("mid-window@7");
+}
+
+#[test]
+fn resume_after_a_crash_mid_rollback() {
+    // The first rollback in a window after the first checkpoint (window 3).
+    let r = reference();
+    let w = (4..r.rollbacks.len())
+        .find(|&w| r.rollbacks[w] > 0)
+        .expect("a rollback after window 3");
+    let before: u64 = r.rollbacks[..w].iter().sum();
+    crash_and_resume(&format!("mid-rollback@{}", before + 1));
+}
+
+#[test]
+fn resume_after_a_crash_between_checkpoint_write_and_rename() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = fresh_run(dir.path(), Some("checkpoint-rename@2"), &[]);
+    assert_eq!(o.status.code(), Some(weft_sim::failpoint::EXIT_CODE));
+    // The first checkpoint survived; the second is only a temporary file.
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["last_checkpoint"]["window"], 3);
+    let s = summary(&resume(dir.path(), &[]));
+    assert_same_as_reference(dir.path(), &s);
+    let stale = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .ends_with(".tmp")
+        })
+        .count();
+    assert_eq!(stale, 0, "the resume removes the abandoned temporary file");
+}
+
+fn wait_for_checkpoint(out: &Path, child: &mut std::process::Child, window: u64) {
+    let start = Instant::now();
+    loop {
+        if let Ok(text) = std::fs::read_to_string(out.join("manifest.json")) {
+            if let Ok(m) = serde_json::from_str::<serde_json::Value>(&text) {
+                if m["last_checkpoint"]["window"]
+                    .as_u64()
+                    .is_some_and(|w| w >= window)
+                {
+                    return;
+                }
+            }
+        }
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before checkpointing window {window}"
+        );
+        assert!(start.elapsed() < Duration::from_secs(120), "no checkpoint");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+fn spawn_run(out: &Path) -> std::process::Child {
+    weft()
+        .arg("run")
+        .arg(repo().join("scenes/crumple.toml"))
+        .arg("--out")
+        .arg(out)
+        .args(FIXTURE)
+        .args(["--quiet", "--no-preview"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("weft starts")
+}
+
+#[test]
+fn resume_after_sigkill() {
+    let _ = reference();
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = spawn_run(dir.path());
+    wait_for_checkpoint(dir.path(), &mut child, 3);
+    child.kill().unwrap(); // SIGKILL
+    let status = child.wait().unwrap();
+    assert!(!status.success());
+    let s = summary(&resume(dir.path(), &[]));
+    assert_same_as_reference(dir.path(), &s);
+}
+
+#[test]
+fn sigterm_checkpoints_and_exits_cleanly() {
+    let _ = reference();
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = spawn_run(dir.path());
+    wait_for_checkpoint(dir.path(), &mut child, 3);
+    let killed = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let o = child.wait_with_output().unwrap();
+    let s = summary(&o);
+    if s["complete"] == true {
+        // The signal came after the last window: nothing left to resume.
+        assert_same_as_reference(dir.path(), &s);
+        return;
+    }
+    assert_eq!(s["stopped_by"], "SIGTERM");
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["status"], "stopped");
+    let s = summary(&resume(dir.path(), &[]));
+    assert_same_as_reference(dir.path(), &s);
+}
+
+#[test]
+fn stop_after_checkpoints_and_resume_finishes_identically() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = summary(&fresh_run(dir.path(), None, &["--stop-after", "0"]));
+    assert_eq!(s["complete"], false);
+    assert_eq!(s["stopped_by"], "stop-after");
+    // Resumed twice: a resume may itself be stopped and resumed.
+    let s = summary(&resume(dir.path(), &["--stop-after", "0"]));
+    assert_eq!(s["complete"], false);
+    let s = summary(&resume(dir.path(), &[]));
+    assert_same_as_reference(dir.path(), &s);
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["status"], "complete");
+    assert_eq!(m["segments"].as_array().unwrap().len(), 3);
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A finished fixture run to damage.
+fn finished_copy() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    summary(&fresh_run(dir.path(), None, &["--set", "time.end=0.05"]));
+    dir
+}
+
+#[test]
+fn corrupt_and_mismatched_checkpoints_are_refused() {
+    let dir = finished_copy();
+    let ck = dir.path().join("checkpoint.wckp");
+    let good = std::fs::read(&ck).unwrap();
+
+    // A flipped byte in the payload.
+    let mut bad = good.clone();
+    let last = bad.len() - 1;
+    bad[last] ^= 0x40;
+    std::fs::write(&ck, &bad).unwrap();
+    let o = resume(dir.path(), &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("corrupt") && stderr(&o).contains("checksum"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(
+        std::fs::read(&ck).unwrap(),
+        bad,
+        "a refused checkpoint is left as it was"
+    );
+
+    // Truncated.
+    std::fs::write(&ck, &good[..good.len() / 2]).unwrap();
+    let o = resume(dir.path(), &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("truncated"), "{}", stderr(&o));
+
+    // Not a checkpoint at all.
+    std::fs::write(&ck, b"hello").unwrap();
+    let o = resume(dir.path(), &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("not a weft checkpoint"),
+        "{}",
+        stderr(&o)
+    );
+
+    // A different scene (an override other than time.end).
+    std::fs::write(&ck, &good).unwrap();
+    let o = resume(dir.path(), &["--set", "contact.friction=0.1"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("different scene"), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("panicked"));
+
+    // Extending the end time is allowed, and continues from the checkpoint.
+    let s = summary(&resume(dir.path(), &["--set", "time.end=0.07"]));
+    assert_eq!(s["complete"], true);
+    assert!(s["simulated_seconds"].as_f64().unwrap() >= 0.07);
+}
+
+#[test]
+fn refusals_without_a_checkpoint_or_over_an_existing_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = resume(dir.path(), &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("manifest.json"), "{}", stderr(&o));
+
+    let dir = finished_copy();
+    let o = fresh_run(dir.path(), None, &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("already holds a run"), "{}", stderr(&o));
+    let before = std::fs::read(dir.path().join("stats.jsonl")).unwrap();
+    assert!(!before.is_empty(), "nothing already written is lost");
+
+    std::fs::remove_file(dir.path().join("checkpoint.wckp")).unwrap();
+    let o = resume(dir.path(), &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("no checkpoint"), "{}", stderr(&o));
+}

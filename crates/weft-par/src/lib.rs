@@ -1,0 +1,16 @@
+//! # weft-par — parallel execution
+//!
+//! Executors that run the engine's stages (see [`weft_sim::Executor`]) on more
+//! than one core. The engine hands an executor per-partition tasks that write
+//! disjoint output chunks and independent maps whose results come back in
+//! index order; every per-vertex sum is an ordered fold done afterwards. So a
+//! run gives the same bits on [`Threads`] with any thread count as on
+//! [`weft_sim::Serial`].
+//!
+//! | module | what |
+//! |---|---|
+//! | [`threads`] | [`Threads`]: a rayon thread pool of its own |
+
+pub mod threads;
+
+pub use threads::Threads;

@@ -1,0 +1,87 @@
+//! The `Threads` executor: the engine's tasks on a rayon pool.
+
+use rayon::prelude::*;
+use weft_sim::Executor;
+
+/// Runs the engine's tasks on its own pool of `n` threads (work stealing:
+/// chunks and map items are taken by whichever thread is idle).
+pub struct Threads {
+    pool: rayon::ThreadPool,
+}
+
+impl Threads {
+    /// A pool of `n` threads (`0`: one per logical core).
+    pub fn new(n: usize) -> Result<Self, rayon::ThreadPoolBuildError> {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .thread_name(|i| format!("weft-{i}"))
+            .build()?;
+        Ok(Self { pool })
+    }
+
+    /// The number of threads in the pool.
+    pub fn threads(&self) -> usize {
+        self.pool.current_num_threads()
+    }
+}
+
+impl std::fmt::Debug for Threads {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Threads({})", self.threads())
+    }
+}
+
+impl Executor for Threads {
+    fn for_each_chunk<T: Send>(
+        &self,
+        data: &mut [T],
+        bounds: &[usize],
+        task: &(dyn Fn(usize, &mut [T]) + Sync),
+    ) {
+        let mut chunks = Vec::with_capacity(bounds.len().saturating_sub(1));
+        let mut rest = data;
+        for k in 0..bounds.len().saturating_sub(1) {
+            let (chunk, tail) = rest.split_at_mut(bounds[k + 1] - bounds[k]);
+            chunks.push((k, chunk));
+            rest = tail;
+        }
+        self.pool.install(|| {
+            chunks.into_par_iter().for_each(|(k, chunk)| task(k, chunk));
+        });
+    }
+
+    fn map<R: Send>(&self, n: usize, f: &(dyn Fn(usize) -> R + Sync)) -> Vec<R> {
+        // `collect` on an indexed parallel iterator keeps index order.
+        self.pool
+            .install(|| (0..n).into_par_iter().map(f).collect())
+    }
+
+    fn name(&self) -> String {
+        format!("threads({})", self.threads())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chunks_are_disjoint_and_complete_and_maps_ordered() {
+        let t = Threads::new(3).unwrap();
+        let mut data = vec![0u32; 100];
+        let bounds = [0, 7, 7, 50, 99, 100];
+        t.for_each_chunk(&mut data, &bounds, &|k, chunk: &mut [u32]| {
+            for x in chunk {
+                *x += k as u32 + 1;
+            }
+        });
+        for k in 0..bounds.len() - 1 {
+            assert!(data[bounds[k]..bounds[k + 1]]
+                .iter()
+                .all(|&x| x == k as u32 + 1));
+        }
+        let squares = t.map(1000, &|i| i * i);
+        assert!(squares.iter().enumerate().all(|(i, &s)| s == i * i));
+        assert_eq!(t.threads(), 3);
+    }
+}

@@ -1,0 +1,476 @@
+//! [`render_run`]: every (k-th) frame of a run folder to PNG, then an MP4 or
+//! GIF preview.
+//!
+//! Frames are rendered on several threads: worker `t` of `T` takes frames
+//! `t, t + T, …` and hands each result over a channel of capacity 2, and the
+//! writer receives them round-robin, so the preview gets the frames in order
+//! and at most `2 T` finished frames wait in memory.
+
+use crate::camera::Camera;
+use crate::error::RenderError;
+use crate::image::Image;
+use crate::preview::{ffmpeg_available, gif_delay, GifWriter, Mp4Writer, Palette, VideoMode};
+use crate::raster::Rasterizer;
+use crate::run_folder::{FrameEntry, RunFolder};
+use glam::DVec3;
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{sync_channel, Receiver};
+use std::time::Instant;
+
+/// Frame rate of the preview when `frames.jsonl` implies none (one frame).
+pub const DEFAULT_FPS: f64 = 24.0;
+/// Largest accepted image side, in pixels.
+pub const MAX_SIZE: u32 = 8192;
+
+/// What [`render_run`] draws and writes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderOptions {
+    /// Image width in pixels (default 640).
+    pub width: u32,
+    /// Image height in pixels (default 480).
+    pub height: u32,
+    /// The camera; `None` fits one ([`Camera::fit_points`]) to all vertices
+    /// of up to 9 evenly spaced rendered frames, the first and the last
+    /// included, using `up` and `fov_y_degrees`.
+    pub camera: Option<Camera>,
+    /// Up direction of a fitted camera (default `+y`).
+    pub up: DVec3,
+    /// Vertical field of view of a fitted camera (default
+    /// [`Camera::DEFAULT_FOV_Y_DEGREES`]).
+    pub fov_y_degrees: f64,
+    /// Render every `every`-th frame of `frames.jsonl` (default 1: all).
+    pub every: usize,
+    /// Which animated preview to write (default [`VideoMode::Auto`]).
+    pub video: VideoMode,
+    /// Preview frame rate; `None` plays in real time: the rate implied by the
+    /// frame times in `frames.jsonl`, divided by `every`, and rounded to a
+    /// whole number when within 5 % of one ([`DEFAULT_FPS`] for a single
+    /// frame).
+    pub fps: Option<f64>,
+    /// Samples per pixel along each axis, 1 to 4 (default 3: 3×3).
+    pub supersample: u32,
+    /// The ffmpeg program, a name looked up on `PATH` or a path (default
+    /// `ffmpeg`).
+    pub ffmpeg: PathBuf,
+    /// Rendering threads; 0 (default) uses the available parallelism.
+    pub threads: usize,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        Self {
+            width: 640,
+            height: 480,
+            camera: None,
+            up: DVec3::Y,
+            fov_y_degrees: Camera::DEFAULT_FOV_Y_DEGREES,
+            every: 1,
+            video: VideoMode::Auto,
+            fps: None,
+            supersample: 3,
+            ffmpeg: PathBuf::from("ffmpeg"),
+            threads: 0,
+        }
+    }
+}
+
+/// What [`render_run`] wrote.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderReport {
+    /// The PNG frames, in frame order (`DIR/render/frame_NNNNN.png`, named by
+    /// the frame index of `frames.jsonl`).
+    pub frames: Vec<PathBuf>,
+    /// `DIR/preview.mp4` or `DIR/preview.gif`, if one was written.
+    pub preview: Option<PathBuf>,
+    /// The preview written: [`VideoMode::Mp4`], [`VideoMode::Gif`] or
+    /// [`VideoMode::None`].
+    pub video: VideoMode,
+    /// The camera used (given or fitted).
+    pub camera: Camera,
+    /// Preview frame rate.
+    pub fps: f64,
+    pub width: u32,
+    pub height: u32,
+    /// Things that went wrong without failing the render, e.g. ffmpeg failing
+    /// in [`VideoMode::Auto`] (a GIF is written instead).
+    pub warnings: Vec<String>,
+    /// Wall-clock seconds of the whole call.
+    pub seconds: f64,
+}
+
+impl RenderReport {
+    /// Every file written: the frames, then the preview.
+    pub fn files(&self) -> Vec<&Path> {
+        self.frames
+            .iter()
+            .chain(&self.preview)
+            .map(PathBuf::as_path)
+            .collect()
+    }
+}
+
+/// A rendered frame on its way to the preview writer.
+enum Payload {
+    Gif(gif::Frame<'static>),
+    Rgb(Vec<u8>),
+    Nothing,
+}
+
+/// Everything a rendering thread needs, shared read-only.
+struct Job<'a> {
+    run: &'a RunFolder,
+    frames: &'a [&'a FrameEntry],
+    camera: Camera,
+    out_dir: &'a Path,
+    opts: &'a RenderOptions,
+    palette: Option<&'a Palette>,
+    delay: u16,
+    rgb: bool,
+}
+
+/// Renders the run folder `dir` (written by `weft run`) to
+/// `dir/render/frame_NNNNN.png`, one image per selected frame, then writes
+/// `dir/preview.mp4` (through ffmpeg) or `dir/preview.gif` as `opts.video`
+/// says. Cloth triangles (per `objects.json`; all triangles when it is
+/// missing) are drawn warm, obstacles grey.
+///
+/// Old `frame_*.png` files in `dir/render` that this call did not write are
+/// removed, and so is the other preview format (`preview.gif` after writing
+/// `preview.mp4` and the reverse), so the folder never mixes two renders.
+///
+/// Errors name the file (and line) at fault: a missing folder or
+/// `frames.jsonl`, a malformed line, an unreadable frame, an output that
+/// cannot be written, ffmpeg missing when [`VideoMode::Mp4`] is asked for.
+/// In [`VideoMode::Auto`] a failing ffmpeg does not fail the call: the GIF is
+/// built from the PNG frames instead and the report carries a warning.
+pub fn render_run(dir: &Path, opts: &RenderOptions) -> Result<RenderReport, RenderError> {
+    let started = Instant::now();
+    check_options(opts)?;
+    let run = RunFolder::open(dir)?;
+    let selected: Vec<&FrameEntry> = run.frames.iter().step_by(opts.every).collect();
+    let camera = match opts.camera {
+        Some(c) => c,
+        None => fit_camera(&run, &selected, opts)?,
+    };
+    let video = match opts.video {
+        VideoMode::Auto if ffmpeg_available(&opts.ffmpeg) => VideoMode::Mp4,
+        VideoMode::Auto => VideoMode::Gif,
+        VideoMode::Mp4 if !ffmpeg_available(&opts.ffmpeg) => {
+            return Err(RenderError::Video {
+                program: opts.ffmpeg.display().to_string(),
+                message: "not found (`ffmpeg -version` does not run); install ffmpeg or ask \
+                          for a GIF preview"
+                    .into(),
+            })
+        }
+        v => v,
+    };
+    let fps = opts.fps.unwrap_or_else(|| {
+        run.implied_frame_rate()
+            .map(|r| whole_if_close(r / opts.every as f64))
+            .unwrap_or(DEFAULT_FPS)
+    });
+    let out_dir = dir.join("render");
+    std::fs::create_dir_all(&out_dir).map_err(|e| RenderError::io(&out_dir, e))?;
+
+    let palette = if video == VideoMode::Gif {
+        Some(train_palette(&run, &selected, &camera, opts)?)
+    } else {
+        None
+    };
+    let mut warnings = Vec::new();
+    let gif_path = dir.join("preview.gif");
+    let mp4_path = dir.join("preview.mp4");
+    let mut gif = match &palette {
+        Some(p) => Some(GifWriter::create(&gif_path, opts.width, opts.height, p)?),
+        None => None,
+    };
+    // An ffmpeg failure is kept until the frames are done: in Auto mode the
+    // GIF is then built from the PNG frames instead.
+    let (mut mp4, mut mp4_error) = if video == VideoMode::Mp4 {
+        match Mp4Writer::create(&opts.ffmpeg, &mp4_path, opts.width, opts.height, fps) {
+            Ok(w) => (Some(w), None),
+            Err(e) => (None, Some(e)),
+        }
+    } else {
+        (None, None)
+    };
+    let job = Job {
+        run: &run,
+        frames: &selected,
+        camera,
+        out_dir: &out_dir,
+        opts,
+        palette: palette.as_ref(),
+        delay: gif_delay(fps),
+        rgb: mp4.is_some(),
+    };
+    let frames = render_frames(&job, |payload| {
+        match payload {
+            Payload::Gif(f) => gif.as_mut().map_or(Ok(()), |g| g.push(&f))?,
+            Payload::Rgb(rgb) => {
+                if let (Some(m), None) = (mp4.as_mut(), &mp4_error) {
+                    if let Err(e) = m.push(&rgb) {
+                        mp4_error = Some(e);
+                    }
+                }
+            }
+            Payload::Nothing => {}
+        }
+        Ok(())
+    })?;
+
+    let mut preview = None;
+    let mut written = video;
+    if let Some(g) = gif {
+        preview = Some(g.finish()?);
+    }
+    if video == VideoMode::Mp4 {
+        let result = match (mp4_error, mp4) {
+            (Some(e), _) => Err(e),
+            (None, Some(m)) => m.finish(),
+            (None, None) => unreachable!("an MP4 preview has a writer or an error"),
+        };
+        match result {
+            Ok(p) => preview = Some(p),
+            Err(e) if opts.video == VideoMode::Auto => {
+                warnings.push(format!("{e}; wrote a GIF preview instead"));
+                preview = Some(gif_from_pngs(&frames, &gif_path, gif_delay(fps))?);
+                written = VideoMode::Gif;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    remove_stale(&out_dir, &frames);
+    match written {
+        VideoMode::Mp4 => remove_if_present(&gif_path),
+        VideoMode::Gif => remove_if_present(&mp4_path),
+        _ => {}
+    }
+    Ok(RenderReport {
+        frames,
+        preview,
+        video: written,
+        camera,
+        fps,
+        width: opts.width,
+        height: opts.height,
+        warnings,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}
+
+/// Frames come at window boundaries, so a 30 fps run implies 29.7 fps or so:
+/// within 5 % of a whole number, use the whole number.
+fn whole_if_close(fps: f64) -> f64 {
+    let whole = fps.round();
+    if whole >= 1.0 && (fps - whole).abs() <= 0.05 * fps {
+        whole
+    } else {
+        fps
+    }
+}
+
+fn check_options(opts: &RenderOptions) -> Result<(), RenderError> {
+    let bad = |m: String| Err(RenderError::Option(m));
+    if !(1..=MAX_SIZE).contains(&opts.width) || !(1..=MAX_SIZE).contains(&opts.height) {
+        return bad(format!(
+            "image size {}x{}; each side must be 1 to {MAX_SIZE} pixels",
+            opts.width, opts.height
+        ));
+    }
+    if !(1..=4).contains(&opts.supersample) {
+        return bad(format!(
+            "supersampling {}; expected 1 to 4",
+            opts.supersample
+        ));
+    }
+    if opts.every == 0 {
+        return bad("frame stride 0; expected 1 or more".into());
+    }
+    if let Some(fps) = opts.fps {
+        if !(fps > 0.0 && fps <= 1000.0) {
+            return bad(format!("frame rate {fps}; expected a value in (0, 1000]"));
+        }
+    }
+    if let Some(c) = &opts.camera {
+        c.validate().map_err(RenderError::Option)?;
+    } else {
+        let probe = Camera::fit(DVec3::ZERO, DVec3::ONE, 1.0, opts.up, opts.fov_y_degrees);
+        probe.validate().map_err(RenderError::Option)?;
+    }
+    Ok(())
+}
+
+/// How many frames the fitted camera looks at.
+const FIT_FRAMES: usize = 9;
+
+/// Fits the camera to all vertices of up to [`FIT_FRAMES`] evenly spaced
+/// selected frames, the first and the last included (a cloth can spread wider
+/// mid-run than at either end).
+fn fit_camera(
+    run: &RunFolder,
+    selected: &[&FrameEntry],
+    opts: &RenderOptions,
+) -> Result<Camera, RenderError> {
+    let n = selected.len();
+    let mut picks: Vec<usize> = if n <= FIT_FRAMES {
+        (0..n).collect()
+    } else {
+        (0..FIT_FRAMES)
+            .map(|k| k * (n - 1) / (FIT_FRAMES - 1))
+            .collect()
+    };
+    picks.dedup();
+    let mut points = Vec::new();
+    for i in picks {
+        points.extend(run.read_frame(selected[i])?.positions);
+    }
+    let aspect = opts.width as f64 / opts.height as f64;
+    let fitted = Camera::fit_points(&points, aspect, opts.up, opts.fov_y_degrees);
+    // Frames without a finite vertex: any view shows the empty background.
+    Ok(fitted.unwrap_or_else(|| {
+        Camera::fit(
+            DVec3::ZERO,
+            DVec3::ZERO,
+            aspect,
+            opts.up,
+            opts.fov_y_degrees,
+        )
+    }))
+}
+
+/// Renders one frame into `raster`'s image.
+fn render_image<'r>(
+    run: &RunFolder,
+    entry: &FrameEntry,
+    camera: &Camera,
+    raster: &'r mut Rasterizer,
+) -> Result<&'r Image, RenderError> {
+    let mesh = run.read_frame(entry)?;
+    let surfaces = run.surfaces(mesh.triangles.len())?;
+    Ok(raster.render(&mesh.positions, &mesh.triangles, &surfaces, camera))
+}
+
+/// The GIF palette, trained on the first, middle and last selected frames.
+fn train_palette(
+    run: &RunFolder,
+    selected: &[&FrameEntry],
+    camera: &Camera,
+    opts: &RenderOptions,
+) -> Result<Palette, RenderError> {
+    let mut picks = vec![0, selected.len() / 2, selected.len() - 1];
+    picks.dedup();
+    let mut raster = Rasterizer::new(opts.width, opts.height, opts.supersample);
+    let mut images = Vec::new();
+    for i in picks {
+        images.push(render_image(run, selected[i], camera, &mut raster)?.clone());
+    }
+    Ok(Palette::train(&images.iter().collect::<Vec<_>>()))
+}
+
+/// Renders `job.frames` on worker threads, writes each PNG, and passes the
+/// preview payloads to `sink` in frame order. Returns the PNG paths.
+fn render_frames(
+    job: &Job<'_>,
+    mut sink: impl FnMut(Payload) -> Result<(), RenderError>,
+) -> Result<Vec<PathBuf>, RenderError> {
+    let n = job.frames.len();
+    let threads = match job.opts.threads {
+        0 => std::thread::available_parallelism().map_or(1, |p| p.get()),
+        t => t,
+    }
+    .clamp(1, n);
+    std::thread::scope(|scope| {
+        let receivers: Vec<Receiver<Result<(PathBuf, Payload), RenderError>>> = (0..threads)
+            .map(|t| {
+                let (tx, rx) = sync_channel(2);
+                scope.spawn(move || {
+                    let o = job.opts;
+                    let mut raster = Rasterizer::new(o.width, o.height, o.supersample);
+                    for i in (t..n).step_by(threads) {
+                        let result = render_one(job, job.frames[i], &mut raster);
+                        let failed = result.is_err();
+                        // A closed channel means the writer gave up: stop.
+                        if tx.send(result).is_err() || failed {
+                            break;
+                        }
+                    }
+                });
+                rx
+            })
+            .collect();
+        let mut pngs = Vec::with_capacity(n);
+        for i in 0..n {
+            let (png, payload) = receivers[i % threads]
+                .recv()
+                // A worker only hangs up early by panicking, which the scope
+                // re-raises anyway.
+                .expect("a rendering thread panicked")?;
+            sink(payload)?;
+            pngs.push(png);
+        }
+        Ok(pngs)
+        // The receivers drop here, before the scope joins the workers, so a
+        // worker blocked on a full channel after an error wakes up and stops.
+    })
+}
+
+fn render_one(
+    job: &Job<'_>,
+    entry: &FrameEntry,
+    raster: &mut Rasterizer,
+) -> Result<(PathBuf, Payload), RenderError> {
+    let img = render_image(job.run, entry, &job.camera, raster)?;
+    let png = job.out_dir.join(format!("frame_{:05}.png", entry.frame));
+    img.write_png(&png)?;
+    let payload = match job.palette {
+        Some(p) => Payload::Gif(p.encode_frame(img, job.delay)),
+        None if job.rgb => Payload::Rgb(img.rgb.clone()),
+        None => Payload::Nothing,
+    };
+    Ok((png, payload))
+}
+
+/// Builds the GIF from PNG frames already on disk (the fallback when ffmpeg
+/// fails in [`VideoMode::Auto`]).
+fn gif_from_pngs(pngs: &[PathBuf], path: &Path, delay: u16) -> Result<PathBuf, RenderError> {
+    let mut picks = vec![0, pngs.len() / 2, pngs.len() - 1];
+    picks.dedup();
+    let samples = picks
+        .into_iter()
+        .map(|i| Image::read_png(&pngs[i]))
+        .collect::<Result<Vec<_>, _>>()?;
+    let palette = Palette::train(&samples.iter().collect::<Vec<_>>());
+    let (w, h) = (samples[0].width, samples[0].height);
+    let mut gif = GifWriter::create(path, w, h, &palette)?;
+    for p in pngs {
+        let img = Image::read_png(p)?;
+        gif.push(&palette.encode_frame(&img, delay))?;
+    }
+    gif.finish()
+}
+
+/// Removes `frame_*.png` files of earlier renders that this one did not write.
+fn remove_stale(out_dir: &Path, written: &[PathBuf]) {
+    let Ok(entries) = std::fs::read_dir(out_dir) else {
+        return;
+    };
+    let keep: HashSet<&std::ffi::OsStr> = written.iter().filter_map(|p| p.file_name()).collect();
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let is_frame = name
+            .to_str()
+            .and_then(|n| n.strip_prefix("frame_"))
+            .and_then(|r| r.strip_suffix(".png"))
+            .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()));
+        if is_frame && !keep.contains(name.as_os_str()) {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
+}
+
+fn remove_if_present(path: &Path) {
+    let _ = std::fs::remove_file(path);
+}

@@ -1,0 +1,538 @@
+//! weft-render end to end: the rasterizer, the camera fit, `render_run` on a
+//! run folder built here, the GIF and the ffmpeg fallbacks, and the plots.
+
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+use weft_render::raster::{BACKGROUND_TOP, CLOTH_FRONT, OBSTACLE};
+use weft_render::{
+    plot_stats, render_run, Camera, Image, Rasterizer, RenderError, RenderOptions, Surface,
+    VideoMode,
+};
+
+/// A UV sphere of radius `r` around `c` with counter-clockwise outward faces.
+fn sphere(c: DVec3, r: f64, rings: u32, segments: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let mut x = vec![c + DVec3::Y * r];
+    for i in 1..rings {
+        let th = std::f64::consts::PI * i as f64 / rings as f64;
+        for j in 0..segments {
+            let ph = std::f64::consts::TAU * j as f64 / segments as f64;
+            x.push(c + r * DVec3::new(th.sin() * ph.cos(), th.cos(), -th.sin() * ph.sin()));
+        }
+    }
+    x.push(c - DVec3::Y * r);
+    let ring = |i: u32, j: u32| 1 + (i - 1) * segments + j % segments;
+    let last = x.len() as u32 - 1;
+    let mut t = Vec::new();
+    for j in 0..segments {
+        t.push([0, ring(1, j), ring(1, j + 1)]);
+        t.push([last, ring(rings - 1, j + 1), ring(rings - 1, j)]);
+        for i in 1..rings - 1 {
+            let (a, b, c2, d) = (
+                ring(i, j),
+                ring(i, j + 1),
+                ring(i + 1, j),
+                ring(i + 1, j + 1),
+            );
+            t.push([a, c2, d]);
+            t.push([a, d, b]);
+        }
+    }
+    (x, t)
+}
+
+/// An `n × n` vertex grid in the xz plane at height `y`, side `size`.
+fn cloth(n: u32, size: f64, y: f64) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let mut x = Vec::new();
+    for i in 0..n {
+        for j in 0..n {
+            let (u, v) = (i as f64 / (n - 1) as f64, j as f64 / (n - 1) as f64);
+            x.push(DVec3::new((u - 0.5) * size, y, (v - 0.5) * size));
+        }
+    }
+    let mut t = Vec::new();
+    for i in 0..n - 1 {
+        for j in 0..n - 1 {
+            let a = i * n + j;
+            t.push([a, a + 1, a + n + 1]);
+            t.push([a, a + n + 1, a + n]);
+        }
+    }
+    (x, t)
+}
+
+/// Writes a run folder like `weft run` does: `frames` PLY frames of a cloth
+/// (n × n) falling over a sphere, `frames.jsonl` at 30 fps, `objects.json`,
+/// `stats.jsonl` and `timing.jsonl`.
+fn write_run(dir: &Path, frames: usize, n: u32) {
+    std::fs::create_dir_all(dir.join("frames")).unwrap();
+    let (sx, st) = sphere(DVec3::ZERO, 0.3, 12, 24);
+    let mut lines = String::new();
+    let mut ntri = 0;
+    let mut nvert = 0;
+    for k in 0..frames {
+        let t = k as f64 / 30.0;
+        let (mut x, mut tris) = cloth(n, 1.0, 0.45 - 0.5 * t);
+        // Sag the cloth over time so frames differ.
+        for p in &mut x {
+            p.y -= 0.3 * t * (1.0 - (p.x * p.x + p.z * p.z).min(1.0));
+        }
+        let off = x.len() as u32;
+        x.extend(&sx);
+        tris.extend(st.iter().map(|f| f.map(|i| i + off)));
+        let v = vec![DVec3::new(0.0, -0.5, 0.0); x.len()];
+        let rel = format!("frames/frame_{k:05}.ply");
+        weft_io::write_ply(&dir.join(&rel), &x, &tris, Some(&v)).unwrap();
+        lines.push_str(&format!(
+            "{{\"frame\":{k},\"file\":\"{rel}\",\"time\":{t:?},\"window\":{k}}}\n"
+        ));
+        ntri = tris.len();
+        nvert = x.len();
+    }
+    std::fs::write(dir.join("frames.jsonl"), lines).unwrap();
+    let cloth_t = 2 * (n - 1) * (n - 1);
+    let cloth_v = n * n;
+    std::fs::write(
+        dir.join("objects.json"),
+        format!(
+            "{{\"objects\":[{{\"name\":\"cloth\",\"vertices\":[0,{cloth_v}],\"triangles\":[0,{cloth_t}],\"cloth\":true}},\
+             {{\"name\":\"ball\",\"vertices\":[{cloth_v},{nvert}],\"triangles\":[{cloth_t},{ntri}],\"cloth\":false}}]}}"
+        ),
+    )
+    .unwrap();
+    write_stats(dir, 40);
+}
+
+fn write_stats(dir: &Path, windows: usize) {
+    let mut stats = String::new();
+    let mut timing = String::new();
+    for w in 0..windows {
+        let t = (w + 1) as f64 * 0.01;
+        stats.push_str(&format!(
+            "{{\"window\":{w},\"time\":{t},\"tick\":{},\"internal_events\":100,\
+             \"internal_stencil_evaluations\":1000,\"layer_events\":{},\"layer_kicks\":3,\
+             \"rollbacks\":{},\"active_stencils\":{},\"depth_histogram\":[5,2],\"max_depth\":{},\
+             \"candidates\":40,\"confirmed\":2,\"retired_layers\":1,\"breakpoints\":500,\
+             \"min_separation\":0.001,\"kinetic_energy\":{},\"potential_energy\":{},\
+             \"contact_energy\":{},\"linear_momentum\":[0.0,{},0.0],\
+             \"angular_momentum\":[1e-6,0.0,{}]}}\n",
+            (w + 1) << 20,
+            w * 7,
+            w % 3,
+            w * w,
+            w / 10,
+            0.5 * t * t,
+            -0.5 * t * t + 1e-3 * t,
+            1e-4 * t,
+            -0.2 * t,
+            2e-5 * t,
+        ));
+        timing.push_str(&format!(
+            "{{\"window\":{w},\"wall_seconds\":{},\"stage_seconds\":{{\"events\":{},\
+             \"broad\":{},\"narrow\":{},\"commit\":0.0001}}}}\n",
+            0.01 + 0.001 * w as f64,
+            0.006,
+            0.002,
+            0.001 * w as f64,
+        ));
+    }
+    std::fs::write(dir.join("stats.jsonl"), stats).unwrap();
+    std::fs::write(dir.join("timing.jsonl"), timing).unwrap();
+}
+
+fn gif_opts() -> RenderOptions {
+    RenderOptions {
+        width: 160,
+        height: 120,
+        video: VideoMode::Gif,
+        supersample: 2,
+        ..Default::default()
+    }
+}
+
+fn gif_frames(path: &Path) -> (u16, u16, usize, Vec<u16>) {
+    let mut opts = gif::DecodeOptions::new();
+    opts.set_color_output(gif::ColorOutput::RGBA);
+    let mut d = opts
+        .read_info(std::fs::File::open(path).unwrap())
+        .expect("the GIF decodes");
+    let (w, h) = (d.width(), d.height());
+    let mut delays = Vec::new();
+    while let Some(f) = d.read_next_frame().expect("frame decodes") {
+        assert_eq!((f.width, f.height), (w, h));
+        delays.push(f.delay);
+    }
+    (w, h, delays.len(), delays)
+}
+
+#[test]
+fn a_near_triangle_hides_a_far_one_in_either_drawing_order() {
+    let camera = Camera {
+        eye: DVec3::new(0.0, 0.0, 5.0),
+        target: DVec3::ZERO,
+        up: DVec3::Y,
+        fov_y_degrees: 40.0,
+    };
+    // Facing the camera (counter-clockwise seen from +z).
+    let near = [
+        DVec3::new(-1.0, -1.0, 1.0),
+        DVec3::new(1.0, -1.0, 1.0),
+        DVec3::new(0.0, 1.0, 1.0),
+    ];
+    let far = near.map(|p| p * DVec3::new(3.0, 3.0, 1.0) - DVec3::new(0.0, 0.0, 2.0));
+    let x: Vec<DVec3> = near.iter().chain(&far).copied().collect();
+    let mut r = Rasterizer::new(64, 64, 2);
+    for (tris, surfaces) in [
+        ([[0, 1, 2], [3, 4, 5]], [Surface::Cloth, Surface::Obstacle]),
+        ([[3, 4, 5], [0, 1, 2]], [Surface::Obstacle, Surface::Cloth]),
+    ] {
+        let img = r.render(&x, &tris, &surfaces, &camera);
+        let c = img.pixel(32, 34);
+        // Cloth is warm (red well above blue), the obstacle grey.
+        assert!(c[0] as i32 - c[2] as i32 > 60, "centre {c:?} is not cloth");
+        // Outside the near triangle but inside the far one: grey.
+        let g = img.pixel(32, 6);
+        assert!(
+            (g[0] as i32 - g[2] as i32).abs() < 20 && g != img.pixel(0, 0),
+            "{g:?}"
+        );
+    }
+}
+
+#[test]
+fn a_fitted_camera_centres_a_unit_sphere() {
+    let (x, t) = sphere(DVec3::new(3.0, -2.0, 7.0), 1.0, 24, 48);
+    let (w, h) = (200, 150);
+    let camera = Camera::fit_points(&x, w as f64 / h as f64, DVec3::Y, 35.0).unwrap();
+    let mut r = Rasterizer::new(w, h, 3);
+    let empty = r.render(&[], &[], &[], &camera).clone();
+    for surface in [Surface::Obstacle, Surface::Cloth] {
+        let img = r.render(&x, &t, &vec![surface; t.len()], &camera).clone();
+        let c = img.pixel(w / 2, h / 2);
+        let want = if surface == Surface::Cloth {
+            CLOTH_FRONT
+        } else {
+            OBSTACLE
+        };
+        // Lit: a fraction of the base colour in every channel, never background.
+        assert_ne!(c, empty.pixel(w / 2, h / 2));
+        for k in 0..3 {
+            assert!(
+                c[k] as f64 <= want[k] as f64 * 1.05 + 1.0,
+                "{c:?} vs {want:?}"
+            );
+            assert!(c[k] as f64 >= want[k] as f64 * 0.25, "{c:?} vs {want:?}");
+        }
+        for (cx, cy) in [(0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1)] {
+            assert_eq!(
+                img.pixel(cx, cy),
+                empty.pixel(cx, cy),
+                "corner ({cx}, {cy})"
+            );
+        }
+        // Centred: the sphere's extent is symmetric about the image centre.
+        let row: Vec<bool> = (0..w)
+            .map(|x| img.pixel(x, h / 2) != empty.pixel(x, h / 2))
+            .collect();
+        let (l, rr) = (
+            row.iter().position(|&b| b).unwrap() as i64,
+            row.iter().rposition(|&b| b).unwrap() as i64,
+        );
+        assert!((l + rr - (w as i64 - 1)).abs() <= 2, "spans {l}..{rr}");
+        assert!(l > 5 && rr < w as i64 - 6, "the sphere fits: {l}..{rr}");
+    }
+    let top = empty.pixel(0, 0);
+    assert!((0..3).all(|k| (top[k] as i32 - BACKGROUND_TOP[k] as i32).abs() <= 1));
+}
+
+#[test]
+fn render_run_writes_pngs_and_a_gif_with_every_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    write_run(dir.path(), 7, 12);
+    let report = render_run(dir.path(), &gif_opts()).unwrap();
+    assert_eq!(report.frames.len(), 7);
+    assert_eq!(report.video, VideoMode::Gif);
+    assert!((report.fps - 30.0).abs() < 1e-9, "fps {}", report.fps);
+    for (k, f) in report.frames.iter().enumerate() {
+        assert_eq!(f, &dir.path().join(format!("render/frame_{k:05}.png")));
+        let img = Image::read_png(f).unwrap();
+        assert_eq!((img.width, img.height), (160, 120));
+    }
+    // Cloth and obstacle are both visible in the first frame.
+    let img = Image::read_png(&report.frames[0]).unwrap();
+    let warm = img
+        .rgb
+        .chunks_exact(3)
+        .filter(|p| p[0] as i32 - p[2] as i32 > 60)
+        .count();
+    let grey = img
+        .rgb
+        .chunks_exact(3)
+        .filter(|p| (p[0] as i32 - p[2] as i32).abs() < 12 && p[0] < 175)
+        .count();
+    assert!(warm > 500 && grey > 100, "warm {warm}, grey {grey}");
+    let preview = report.preview.clone().unwrap();
+    assert_eq!(preview, dir.path().join("preview.gif"));
+    let (w, h, n, delays) = gif_frames(&preview);
+    assert_eq!((w, h, n), (160, 120, 7));
+    assert!(delays.iter().all(|&d| d == 3), "{delays:?}");
+    assert_eq!(report.files().len(), 8);
+    // No temporary files are left behind.
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(names.iter().all(|n| !n.ends_with(".tmp")), "{names:?}");
+}
+
+#[test]
+fn every_kth_frame_replaces_an_earlier_render() {
+    let dir = tempfile::tempdir().unwrap();
+    write_run(dir.path(), 7, 8);
+    render_run(dir.path(), &gif_opts()).unwrap();
+    let opts = RenderOptions {
+        every: 3,
+        video: VideoMode::None,
+        ..gif_opts()
+    };
+    let report = render_run(dir.path(), &opts).unwrap();
+    assert_eq!(report.preview, None);
+    assert_eq!(report.video, VideoMode::None);
+    assert!((report.fps - 10.0).abs() < 1e-9);
+    let mut left: Vec<PathBuf> = std::fs::read_dir(dir.path().join("render"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    left.sort();
+    let want: Vec<PathBuf> = [0, 3, 6]
+        .iter()
+        .map(|k| dir.path().join(format!("render/frame_{k:05}.png")))
+        .collect();
+    assert_eq!(left, want);
+    assert_eq!(report.frames, want);
+}
+
+#[test]
+fn auto_picks_a_gif_when_ffmpeg_is_missing_and_mp4_then_fails() {
+    let dir = tempfile::tempdir().unwrap();
+    write_run(dir.path(), 3, 6);
+    let missing = dir.path().join("no-such-ffmpeg");
+    let opts = RenderOptions {
+        video: VideoMode::Auto,
+        ffmpeg: missing.clone(),
+        ..gif_opts()
+    };
+    let report = render_run(dir.path(), &opts).unwrap();
+    assert_eq!(report.video, VideoMode::Gif);
+    assert!(report.warnings.is_empty(), "{:?}", report.warnings);
+    assert_eq!(gif_frames(report.preview.as_ref().unwrap()).2, 3);
+
+    let e = render_run(
+        dir.path(),
+        &RenderOptions {
+            video: VideoMode::Mp4,
+            ..opts
+        },
+    )
+    .unwrap_err();
+    assert!(matches!(e, RenderError::Video { .. }), "{e}");
+    assert!(e.to_string().contains("no-such-ffmpeg"), "{e}");
+}
+
+/// An ffmpeg that answers `-version` but fails to encode: Auto falls back to
+/// a GIF built from the PNG frames; an explicit MP4 fails with its message.
+#[cfg(unix)]
+#[test]
+fn a_failing_ffmpeg_falls_back_to_gif_in_auto_mode() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    write_run(dir.path(), 4, 6);
+    let fake = dir.path().join("fake-ffmpeg");
+    std::fs::write(
+        &fake,
+        "#!/bin/sh\n[ \"$1\" = -version ] && exit 0\ncat >/dev/null\necho 'no encoder here' >&2\nexit 3\n",
+    )
+    .unwrap();
+    std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let opts = RenderOptions {
+        video: VideoMode::Auto,
+        ffmpeg: fake,
+        ..gif_opts()
+    };
+    let report = render_run(dir.path(), &opts).unwrap();
+    assert_eq!(report.video, VideoMode::Gif);
+    assert_eq!(report.warnings.len(), 1);
+    assert!(
+        report.warnings[0].contains("no encoder here"),
+        "{:?}",
+        report.warnings
+    );
+    assert_eq!(gif_frames(report.preview.as_ref().unwrap()).2, 4);
+    assert!(!dir.path().join("preview.mp4").exists());
+
+    let e = render_run(
+        dir.path(),
+        &RenderOptions {
+            video: VideoMode::Mp4,
+            ..opts
+        },
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("no encoder here"), "{e}");
+}
+
+#[test]
+fn a_run_without_objects_json_is_all_cloth() {
+    let dir = tempfile::tempdir().unwrap();
+    write_run(dir.path(), 1, 10);
+    std::fs::remove_file(dir.path().join("objects.json")).unwrap();
+    let report = render_run(
+        dir.path(),
+        &RenderOptions {
+            video: VideoMode::None,
+            ..gif_opts()
+        },
+    )
+    .unwrap();
+    let img = Image::read_png(&report.frames[0]).unwrap();
+    let grey = img
+        .rgb
+        .chunks_exact(3)
+        .filter(|p| (p[0] as i32 - p[2] as i32).abs() < 12 && p[0] < 175)
+        .count();
+    assert!(grey < 20, "{grey} grey pixels");
+    // A single frame implies no rate: the default is used.
+    assert_eq!(report.fps, weft_render::render::DEFAULT_FPS);
+}
+
+#[test]
+fn errors_name_the_file_and_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let opts = RenderOptions {
+        video: VideoMode::None,
+        ..gif_opts()
+    };
+    let missing = dir.path().join("nothing-here");
+    let e = render_run(&missing, &opts).unwrap_err().to_string();
+    assert!(
+        e.contains("nothing-here") && e.contains("no such folder"),
+        "{e}"
+    );
+
+    let e = render_run(dir.path(), &opts).unwrap_err().to_string();
+    assert!(e.contains("frames.jsonl"), "{e}");
+
+    write_run(dir.path(), 3, 5);
+    let frames = dir.path().join("frames.jsonl");
+    let text = std::fs::read_to_string(&frames).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    lines[1] = "{\"frame\":1,\"file\":";
+    std::fs::write(&frames, lines.join("\n")).unwrap();
+    let e = render_run(dir.path(), &opts).unwrap_err().to_string();
+    assert!(e.contains("frames.jsonl:2:"), "{e}");
+
+    std::fs::write(&frames, text).unwrap();
+    std::fs::write(
+        dir.path().join("frames/frame_00002.ply"),
+        b"ply\nformat nonsense\n",
+    )
+    .unwrap();
+    let e = render_run(dir.path(), &opts).unwrap_err().to_string();
+    assert!(
+        e.contains("frame 2") && e.contains("frame_00002.ply"),
+        "{e}"
+    );
+
+    std::fs::copy(
+        dir.path().join("frames/frame_00000.ply"),
+        dir.path().join("frames/frame_00002.ply"),
+    )
+    .unwrap();
+    std::fs::remove_file(dir.path().join("frames/frame_00001.ply")).unwrap();
+    let e = render_run(dir.path(), &opts).unwrap_err().to_string();
+    assert!(e.contains("frame_00001.ply"), "{e}");
+
+    let bad = RenderOptions {
+        every: 0,
+        ..opts.clone()
+    };
+    assert!(matches!(
+        render_run(dir.path(), &bad),
+        Err(RenderError::Option(_))
+    ));
+    let bad = RenderOptions {
+        camera: Some(Camera {
+            eye: DVec3::ZERO,
+            target: DVec3::ZERO,
+            up: DVec3::Y,
+            fov_y_degrees: 30.0,
+        }),
+        ..opts
+    };
+    let e = render_run(dir.path(), &bad).unwrap_err().to_string();
+    assert!(e.contains("eye and target coincide"), "{e}");
+}
+
+#[test]
+fn plots_are_drawn_from_stats_and_timing() {
+    let dir = tempfile::tempdir().unwrap();
+    write_stats(dir.path(), 60);
+    let out = dir.path().join("plots");
+    let files = plot_stats(dir.path(), &out).unwrap();
+    let names: Vec<String> = files
+        .iter()
+        .map(|f| f.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(
+        names,
+        ["energy.png", "momentum.png", "contacts.png", "time.png"]
+    );
+    for f in &files {
+        let img = Image::read_png(f).unwrap();
+        assert_eq!(img.width, weft_render::plot::CHART_WIDTH);
+        let ink = img.count_not(weft_render::chart::BACKGROUND);
+        assert!(ink > 10_000, "{}: {ink} non-background pixels", f.display());
+        // Coloured lines, not only black text and grey grid.
+        let coloured = img
+            .rgb
+            .chunks_exact(3)
+            .filter(|p| p.iter().max().unwrap() - p.iter().min().unwrap() > 80)
+            .count();
+        assert!(
+            coloured > 300,
+            "{}: {coloured} coloured pixels",
+            f.display()
+        );
+    }
+
+    // A stats file as input, without timing beside it: three charts.
+    std::fs::remove_file(dir.path().join("timing.jsonl")).unwrap();
+    let files = plot_stats(&dir.path().join("stats.jsonl"), &out).unwrap();
+    assert_eq!(files.len(), 3);
+}
+
+#[test]
+fn a_malformed_stats_line_is_reported_with_file_and_line() {
+    let dir = tempfile::tempdir().unwrap();
+    write_stats(dir.path(), 5);
+    let stats = dir.path().join("stats.jsonl");
+    let mut text = std::fs::read_to_string(&stats).unwrap();
+    text.push_str("{\"window\":5,\"time\":\"soon\"}\n");
+    std::fs::write(&stats, text).unwrap();
+    let e = plot_stats(dir.path(), &dir.path().join("plots")).unwrap_err();
+    assert!(
+        matches!(e, RenderError::Format { line: Some(6), .. }),
+        "{e}"
+    );
+    assert!(e.to_string().contains("stats.jsonl:6:"), "{e}");
+
+    let timing = dir.path().join("timing.jsonl");
+    std::fs::write(&stats, "\n").unwrap();
+    let e = plot_stats(&stats, &dir.path().join("plots")).unwrap_err();
+    assert!(e.to_string().contains("no windows"), "{e}");
+    write_stats(dir.path(), 3);
+    std::fs::write(&timing, "{\"window\":0}\n").unwrap();
+    let e = plot_stats(dir.path(), &dir.path().join("plots")).unwrap_err();
+    assert!(e.to_string().contains("timing.jsonl:1:"), "{e}");
+    let e = plot_stats(&dir.path().join("absent.jsonl"), dir.path()).unwrap_err();
+    assert!(e.to_string().contains("absent.jsonl"), "{e}");
+}
