@@ -28,7 +28,7 @@ pub struct RenderArgs {
     /// Preview frame rate [default: real time, from frames.jsonl].
     #[arg(long)]
     pub fps: Option<f64>,
-    /// Camera position (needs --target); without it the scene's [camera] is
+    /// Camera position (needs --target); without it the scene's camera table is
     /// used, or else the camera is fitted.
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3, allow_hyphen_values = true)]
     pub eye: Option<DVec3>,
