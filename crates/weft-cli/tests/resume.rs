@@ -197,6 +197,25 @@ fn resume_after_a_crash_between_checkpoint_write_and_rename() {
     assert_eq!(stale, 0, "the resume removes the abandoned temporary file");
 }
 
+/// A stop request that lands mid-window after rollbacks added layers: the
+/// checkpoint holds the committed layers, not the ones the window's rollbacks
+/// added, so the resumed window repeats its rollbacks and the stats agree.
+#[test]
+fn an_interrupt_after_a_rollback_resumes_identically() {
+    let r = reference();
+    let w = (4..r.rollbacks.len())
+        .find(|&w| r.rollbacks[w] > 0)
+        .expect("a rollback after window 3");
+    let before: u64 = r.rollbacks[..w].iter().sum();
+    let dir = tempfile::tempdir().unwrap();
+    let point = format!("interrupt-after-rollback@{}", before + 1);
+    let s = summary(&fresh_run(dir.path(), Some(&point), &[]));
+    assert_eq!(s["complete"], false, "{point} stopped the run");
+    assert_eq!(s["windows"], w as u64, "stopped in window {w}");
+    let s = summary(&resume(dir.path(), &[]));
+    assert_same_as_reference(dir.path(), &s);
+}
+
 fn wait_for_checkpoint(out: &Path, child: &mut std::process::Child, window: u64) {
     let start = Instant::now();
     loop {
@@ -371,4 +390,38 @@ fn refusals_without_a_checkpoint_or_over_an_existing_run() {
     let o = resume(dir.path(), &[]);
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("no checkpoint"), "{}", stderr(&o));
+}
+
+/// Hitting the rollback cap stops the run with an error naming the stencil,
+/// keeps a reproduction bundle and checkpoints the last committed window.
+#[test]
+fn the_rollback_cap_leaves_a_checkpoint_and_a_reproduction() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = fresh_run(dir.path(), None, &["--set", "contact.max_rollbacks=0"]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = stderr(&o);
+    assert!(
+        err.contains("rollbacks") && err.contains("stencil"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+    for f in [
+        "repro/window_start.ply",
+        "repro/window_start.json",
+        "checkpoint.wckp",
+    ] {
+        assert!(dir.path().join(f).is_file(), "{f} missing");
+    }
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["status"], "failed");
+    assert!(m["error"].as_str().unwrap().contains("rollbacks"));
+    // The checkpoint is the start of the window that could not commit: the
+    // first window of the reference run with a rollback.
+    let first = reference().rollbacks.iter().position(|&r| r > 0).unwrap();
+    assert_eq!(m["last_checkpoint"]["window"], first as u64);
+    let repro: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("repro/window_start.json")).unwrap())
+            .unwrap();
+    assert_eq!(repro["window"], first as u64);
 }

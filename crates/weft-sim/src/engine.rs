@@ -315,7 +315,21 @@ impl<E: Executor> Engine<E> {
     }
 
     /// Runs one window to commit (with as many rollbacks as it needs).
+    ///
+    /// On an error (an interrupt included) the world is left exactly at the
+    /// last committed state — positions, velocities, clocks and the active
+    /// layers, without the layers this window's rollbacks added — so a
+    /// checkpoint taken then resumes bit-identically.
     pub fn step_window(&mut self) -> Result<WindowStats, SimError> {
+        let committed_layers = self.world.layers.clone();
+        let result = self.run_window();
+        if result.is_err() {
+            self.world.layers = committed_layers;
+        }
+        result
+    }
+
+    fn run_window(&mut self) -> Result<WindowStats, SimError> {
         let started = Instant::now();
         let t0 = self.world.tick;
         let t1 = t0 + self.world.lattice.window();
@@ -401,7 +415,13 @@ impl<E: Executor> Engine<E> {
                 self.world.layers.deepen(*key, extra);
             }
             rollbacks += 1;
-            crate::failpoint::hit("mid-rollback", self.totals.rollbacks + rollbacks as u64);
+            let so_far = self.totals.rollbacks + rollbacks as u64;
+            crate::failpoint::hit("mid-rollback", so_far);
+            if crate::failpoint::triggered("interrupt-after-rollback", so_far) {
+                if let Some(flag) = &self.interrupt {
+                    flag.store(true, Ordering::Relaxed);
+                }
+            }
             if rollbacks > self.world.contact.max_rollbacks {
                 let key = reported[reported.len() - 1];
                 let p = self.world.x[key.v[0] as usize];

@@ -12,6 +12,7 @@
 //! | `mid-window` | after the first event batch of a window's first pass | window index |
 //! | `mid-rollback` | just after a rollback restored the window start | rollbacks so far in the run, this one included |
 //! | `checkpoint-rename` | a checkpoint is written to its temporary file, not yet renamed | checkpoints written by this process, this one included |
+//! | `interrupt-after-rollback` | (does not exit) sets the engine's interrupt flag just after a rollback, as a signal arriving then would | rollbacks so far in the run, this one included |
 
 use std::sync::OnceLock;
 
@@ -32,10 +33,14 @@ fn configured() -> Option<&'static (String, u64)> {
 /// Exits the process if `WEFT_FAILPOINT` names `name@n`.
 #[inline]
 pub fn hit(name: &str, n: u64) {
-    if let Some((point, at)) = configured() {
-        if point == name && *at == n {
-            eprintln!("weft: failpoint {name}@{n} reached; exiting as if crashed");
-            std::process::exit(EXIT_CODE);
-        }
+    if triggered(name, n) {
+        eprintln!("weft: failpoint {name}@{n} reached; exiting as if crashed");
+        std::process::exit(EXIT_CODE);
     }
+}
+
+/// Whether `WEFT_FAILPOINT` names `name@n` (for points that act, not exit).
+#[inline]
+pub fn triggered(name: &str, n: u64) -> bool {
+    configured().is_some_and(|(point, at)| point == name && *at == n)
 }

@@ -1290,6 +1290,7 @@ fn rollback_cap_names_the_stencil_and_keeps_the_window_start() {
             e.world.tau.clone(),
             e.world.tick,
         );
+        let layers = e.world.layers.clone();
         match e.step_window() {
             Ok(st) => assert!(st.rollbacks <= 1, "window {w}: {} rollbacks", st.rollbacks),
             Err(err) => {
@@ -1310,9 +1311,11 @@ fn rollback_cap_names_the_stencil_and_keeps_the_window_start() {
                 // The stencil involves the bullet (vertices 3..6) and the target.
                 assert!(key.v.iter().any(|&i| i >= 3), "{key:?}");
                 assert!(places.contains("bullet #"), "{places}");
-                assert!(
-                    depth >= 2,
-                    "the layers added by the rollbacks are kept: depth {depth}"
+                assert!(depth >= 2, "the error names the depth reached: {depth}");
+                assert_eq!(
+                    e.world.layers, layers,
+                    "the active layers are the committed ones (a checkpoint of this state \
+                     resumes bit-identically)"
                 );
                 assert!(msg.contains(kind) && msg.contains("max_rollbacks"));
                 assert_eq!(e.world.x, x, "x is not the window start state");
