@@ -34,7 +34,7 @@ use crate::clock::{next_multiple_after, Tick};
 use crate::diagnostics::{StageSeconds, WindowStats};
 use crate::error::SimError;
 use crate::executor::{Executor, Serial};
-use crate::layers::penalty_kick;
+use crate::layers::{penalty_kick, LayerState};
 use crate::state::EngineState;
 use crate::trajectory::Trajectories;
 use crate::world::World;
@@ -733,33 +733,57 @@ impl<E: Executor> Engine<E> {
     /// retired, then the next innermost as long as it is certified too — the
     /// active set stays a prefix `1..=depth` — and the counter restarts.
     fn commit(&mut self, candidates: &[StencilKey]) -> u64 {
-        let w = &mut self.world;
+        const TASK: usize = 64;
+        let w = &self.world;
+        let traj = &self.traj;
         let hysteresis = w.contact.retire_after_windows;
+        let entries: Vec<(StencilKey, LayerState)> =
+            w.layers.stencils.iter().map(|(k, s)| (*k, *s)).collect();
+        // Each stencil's new state depends on its own certificates only, so
+        // the stencils are decided on the executor and applied in key order.
+        let decided = self.exec.map(entries.len().div_ceil(TASK), &|t| {
+            let mut ccd = CcdStats::default();
+            let run = &entries[t * TASK..((t + 1) * TASK).min(entries.len())];
+            let states: Vec<(LayerState, u64)> = run
+                .iter()
+                .map(|&(key, mut s)| {
+                    let near = candidates.binary_search(&key).is_ok();
+                    let tr = key.v.map(|i| traj.of(i as usize));
+                    let mut certified_outside =
+                        |eta: f64| -> bool { !near || !proximity(key.kind, &tr, eta, &mut ccd) };
+                    if !certified_outside(w.schedule.eta(s.depth)) {
+                        s.calm_windows = 0;
+                        return (s, 0);
+                    }
+                    s.calm_windows += 1;
+                    if s.calm_windows < hysteresis {
+                        return (s, 0);
+                    }
+                    s.calm_windows = 0;
+                    s.depth -= 1;
+                    let mut retired = 1;
+                    while s.depth > 0 && certified_outside(w.schedule.eta(s.depth)) {
+                        s.depth -= 1;
+                        retired += 1;
+                    }
+                    (s, retired)
+                })
+                .collect();
+            (states, ccd)
+        });
         let mut retired = 0;
-        let keys: Vec<StencilKey> = w.layers.stencils.keys().copied().collect();
-        for key in keys {
-            let near = candidates.binary_search(&key).is_ok();
-            let traj = key.v.map(|i| self.traj.of(i as usize));
-            let certified_outside =
-                |eta: f64, ccd: &mut CcdStats| !near || !proximity(key.kind, &traj, eta, ccd);
-            let s = w.layers.stencils.get_mut(&key).expect("active stencil");
-            if !certified_outside(w.schedule.eta(s.depth), &mut self.ccd) {
-                s.calm_windows = 0;
-                continue;
-            }
-            s.calm_windows += 1;
-            if s.calm_windows < hysteresis {
-                continue;
-            }
-            s.calm_windows = 0;
-            s.depth -= 1;
-            retired += 1;
-            while s.depth > 0 && certified_outside(w.schedule.eta(s.depth), &mut self.ccd) {
-                s.depth -= 1;
-                retired += 1;
-            }
+        let mut decided_states = Vec::with_capacity(entries.len());
+        for (states, ccd) in decided {
+            self.ccd.merge(&ccd);
+            decided_states.extend(states);
+        }
+        let layers = &mut self.world.layers.stencils;
+        for ((key, _), (s, r)) in entries.iter().zip(decided_states) {
+            retired += r;
             if s.depth == 0 {
-                w.layers.stencils.remove(&key);
+                layers.remove(key);
+            } else {
+                layers.insert(*key, s);
             }
         }
         retired
