@@ -22,6 +22,7 @@ fn main() {
     let material = Material::plate(0.2, 1e5, 0.3, 1e-3);
     let spec = WorldSpec {
         objects: vec![ObjectSpec {
+            friction: None,
             name: "cloth".into(),
             mesh: start,
             kind: ObjectKind::Cloth {

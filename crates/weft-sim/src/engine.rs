@@ -568,7 +568,6 @@ impl<E: Executor> Engine<E> {
         // stencil is computed once per batch (positions are those at `t` for
         // every layer) and cached with the batch's tick as stamp.
         let layer_clocks = if internal { &firing[1..] } else { firing };
-        let mu = w.contact.friction;
         for &l in layer_clocks {
             let (eta_l, k_l) = (
                 layer_consts[l as usize - 1].0,
@@ -613,6 +612,7 @@ impl<E: Executor> Engine<E> {
                 }
                 let v = key.v.map(|i| w.v[i as usize]);
                 let inv = key.v.map(|i| w.inv_mass[i as usize]);
+                let mu = w.stencil_friction(key);
                 if let Some(k) = penalty_kick(eta_l, k_l, h_l, &c, &v, &inv, mu) {
                     counts.layer_kicks += 1;
                     for j in 0..4 {

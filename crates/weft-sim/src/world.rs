@@ -38,6 +38,10 @@ pub struct ObjectSpec {
     pub name: String,
     pub mesh: TriMesh,
     pub kind: ObjectKind,
+    /// Coulomb friction coefficient of the object's surface; `None` = the
+    /// scene's `contact.friction`. A contact between two objects uses the
+    /// geometric mean of theirs (their common value when they agree).
+    pub friction: Option<f64>,
 }
 
 /// Cloth vertices held by a script.
@@ -103,9 +107,29 @@ pub struct World {
     pub layers: ActiveLayers,
     /// Largest angular frequency of the assembled rest system (rad/s).
     pub omega_max: f64,
+    /// Friction coefficient of each vertex's object.
+    pub vertex_friction: Vec<f64>,
 }
 
 impl World {
+    /// Friction coefficient of a stencil: the geometric mean of its two
+    /// sides' objects (the vertex or first edge, and the face or second
+    /// edge), or their common value when they agree (exactly the scene's
+    /// `contact.friction` when no object sets its own).
+    pub fn stencil_friction(&self, key: &weft_core::StencilKey) -> f64 {
+        let split = match key.kind {
+            weft_core::StencilKind::VertexFace => 1,
+            weft_core::StencilKind::EdgeEdge => 2,
+        };
+        let a = self.vertex_friction[key.v[0] as usize];
+        let b = self.vertex_friction[key.v[split] as usize];
+        if a == b {
+            a
+        } else {
+            (a * b).sqrt()
+        }
+    }
+
     /// Builds and validates a world. Does not check the initial state for
     /// contact (see [`crate::engine::Engine::new`]).
     pub fn build(spec: &WorldSpec) -> Result<Self, SimError> {
@@ -126,11 +150,20 @@ impl World {
         let mut materials_list: Vec<Material> = Vec::new();
         let mut scripts = Vec::new();
         let mut kinematic = Vec::new();
+        let mut vertex_friction = Vec::new();
         for obj in &spec.objects {
             weft_core::validate(&obj.mesh).map_err(|e| SimError::Mesh {
                 object: obj.name.clone(),
                 source: e,
             })?;
+            let mu = obj.friction.unwrap_or(spec.contact.friction);
+            if !(mu >= 0.0 && mu.is_finite()) {
+                return Err(SimError::Config(format!(
+                    "object '{}': friction {mu} must be a non-negative number",
+                    obj.name
+                )));
+            }
+            vertex_friction.extend(std::iter::repeat_n(mu, obj.mesh.num_vertices()));
             let v0 = all.positions.len() as u32;
             let t0 = all.triangles.len() as u32;
             all.append(&obj.mesh);
@@ -424,6 +457,7 @@ impl World {
             window_index: 0,
             layers: ActiveLayers::default(),
             omega_max,
+            vertex_friction,
         };
         // Kinematic vertices start on the chord to their scripted position one
         // internal step later.

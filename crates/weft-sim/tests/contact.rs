@@ -45,6 +45,7 @@ fn cloth_material() -> Material {
 fn cloth(name: &str, mesh: TriMesh, velocity: DVec3) -> ObjectSpec {
     let n = mesh.num_vertices();
     ObjectSpec {
+        friction: None,
         name: name.into(),
         mesh,
         kind: ObjectKind::Cloth {
@@ -57,6 +58,7 @@ fn cloth(name: &str, mesh: TriMesh, velocity: DVec3) -> ObjectSpec {
 
 fn obstacle(name: &str, mesh: TriMesh) -> ObjectSpec {
     ObjectSpec {
+        friction: None,
         name: name.into(),
         mesh,
         kind: ObjectKind::Obstacle {
@@ -1458,6 +1460,7 @@ fn non_finite_positions_are_refused_as_mesh_errors() {
     let mut rest = g.positions.clone();
     rest[2].x = f64::NAN;
     let c = ObjectSpec {
+        friction: None,
         name: "shirt".into(),
         mesh: g,
         kind: ObjectKind::Cloth {
@@ -1579,6 +1582,7 @@ fn degenerate_cloth_triangle_is_refused() {
     let mut rest = g.positions.clone();
     rest[5] = (rest[2] + rest[4]) * 0.5;
     let c = ObjectSpec {
+        friction: None,
         name: "rag".into(),
         mesh: g.clone(),
         kind: ObjectKind::Cloth {
@@ -1601,6 +1605,7 @@ fn degenerate_cloth_triangle_is_refused() {
     let mut rest = g.positions.clone();
     rest[2] = (rest[1] + rest[4]) * 0.5;
     let c = ObjectSpec {
+        friction: None,
         name: "rag".into(),
         mesh: g,
         kind: ObjectKind::Cloth {

@@ -49,6 +49,7 @@ fn event_loop_without_contact_is_leapfrog_bitwise() {
         .map(|k| DVec3::new(0.01 * (k as f64).cos(), 0.2, -0.05))
         .collect();
     let obj = ObjectSpec {
+        friction: None,
         name: "sheet".into(),
         mesh: start,
         kind: ObjectKind::Cloth {
@@ -129,6 +130,7 @@ fn folding_strip() -> WorldSpec {
         })
         .collect();
     let obj = ObjectSpec {
+        friction: None,
         name: "strip".into(),
         mesh: start,
         kind: ObjectKind::Cloth {

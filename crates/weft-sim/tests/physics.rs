@@ -59,6 +59,7 @@ fn spec(
 
 fn cloth(name: &str, mesh: TriMesh, material: Material) -> ObjectSpec {
     ObjectSpec {
+        friction: None,
         name: name.into(),
         mesh,
         kind: ObjectKind::Cloth {
@@ -468,6 +469,12 @@ fn linear_slope(t: &[f64], y: &[f64]) -> f64 {
 /// normal damping), then runs freely for `span` seconds; the down-slope
 /// position and velocity of its centre of mass are recorded at every window.
 fn slide(theta: f64, mu: f64, settle: f64, span: f64) -> SlideResult {
+    slide_with(theta, mu, [None, None], settle, span)
+}
+
+/// [`slide`] with the patch's and the incline's own friction coefficients
+/// (`None`: the scene's `mu`).
+fn slide_with(theta: f64, mu: f64, own: [Option<f64>; 2], settle: f64, span: f64) -> SlideResult {
     let eta = 1.0e-3;
     let tilt = |p: DVec3| rotate(p, DVec3::Z, theta);
     let mut bx = cuboid(DVec3::new(-0.6, -0.05, -0.1), DVec3::new(0.1, 0.0, 0.1));
@@ -486,9 +493,12 @@ fn slide(theta: f64, mu: f64, settle: f64, span: f64) -> SlideResult {
         friction: mu,
         ..Default::default()
     };
+    let mut patch = cloth("patch", patch, material);
+    patch.friction = own[0];
     let objects = vec![
-        cloth("patch", patch, material),
+        patch,
         ObjectSpec {
+            friction: own[1],
             name: "incline".into(),
             mesh: bx,
             kind: ObjectKind::Obstacle {
@@ -621,6 +631,22 @@ fn incline_sticks_when_tan_theta_below_mu() {
                 r.displacement
             );
         }
+    }
+}
+
+/// Per-object friction: a frictionless scene whose patch (0.5) and incline
+/// (0.08) carry their own coefficients slides with their geometric mean,
+/// `mu = 0.2`: `a = g (sin θ − 0.2 cos θ)`.
+#[test]
+fn incline_uses_the_geometric_mean_of_the_objects_friction() {
+    let th = 30f64.to_radians();
+    let r = slide_with(th, 0.0, [Some(0.5), Some(0.08)], 0.05, 0.25);
+    let expected = G * (th.sin() - 0.2 * th.cos());
+    for a in [r.accel_pos, r.accel_vel] {
+        assert!(
+            (a / expected - 1.0).abs() < 0.01,
+            "a = {a:.5} vs {expected:.5}"
+        );
     }
 }
 

@@ -308,6 +308,18 @@ fn motion(m: &MotionSection, path: &Path, key: &str) -> Result<Motion, SceneErro
     }
 }
 
+/// An object's own friction coefficient, checked.
+fn object_friction(mu: Option<f64>, path: &Path, key: &str) -> Result<Option<f64>, SceneError> {
+    match mu {
+        Some(m) if !(m >= 0.0 && m.is_finite()) => Err(invalid(
+            path,
+            format!("{key}.friction"),
+            "must be a non-negative number",
+        )),
+        _ => Ok(mu),
+    }
+}
+
 fn load_mesh_file(scene: &Path, file: &str, key: &str) -> Result<TriMesh, SceneError> {
     let p = scene.parent().unwrap_or(Path::new(".")).join(file);
     crate::read_mesh(&p)
@@ -1066,6 +1078,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
         material.stretch_damping = m.stretch_damping;
         material.bend_damping = m.bend_damping;
         objects.push(ObjectSpec {
+            friction: object_friction(c.friction, path, &key)?,
             name: c.name.clone(),
             mesh,
             kind: ObjectKind::Cloth {
@@ -1161,6 +1174,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             }
         };
         objects.push(ObjectSpec {
+            friction: object_friction(o.friction, path, &key)?,
             name: o.name.clone(),
             mesh,
             kind: ObjectKind::Obstacle { motion },

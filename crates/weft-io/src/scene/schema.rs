@@ -192,6 +192,9 @@ impl Default for OutputSection {
 #[serde(deny_unknown_fields)]
 pub struct ClothSection {
     pub name: String,
+    /// Friction coefficient of this cloth (default: `contact.friction`).
+    #[serde(default)]
+    pub friction: Option<f64>,
     /// Mesh file (OBJ or PLY), relative to the scene file.
     #[serde(default)]
     pub mesh: Option<String>,
@@ -355,6 +358,9 @@ impl Default for MaterialSection {
 #[serde(deny_unknown_fields)]
 pub struct ObstacleSection {
     pub name: String,
+    /// Friction coefficient of this obstacle (default: `contact.friction`).
+    #[serde(default)]
+    pub friction: Option<f64>,
     #[serde(default)]
     pub mesh: Option<String>,
     #[serde(default)]
