@@ -12,4 +12,5 @@ pub mod intersections;
 pub mod knots;
 pub mod ribbon;
 pub mod shapes;
+pub mod strain;
 pub mod tri_tri;

@@ -622,15 +622,7 @@ pub fn max_green_strain(rest: &[DVec3], start: &[DVec3], triangles: &[[u32; 3]])
         let (u, v) = (x1 - x0, x2 - x0);
         let f0 = u * p;
         let f1 = u * q + v * r;
-        let (g00, g11, g01) = (
-            0.5 * (f0.dot(f0) - 1.0),
-            0.5 * (f1.dot(f1) - 1.0),
-            0.5 * f0.dot(f1),
-        );
-        let mean = 0.5 * (g00 + g11);
-        let half = 0.5 * (g00 - g11);
-        let radius = (half * half + g01 * g01).sqrt();
-        worst = worst.max((mean + radius).abs()).max((mean - radius).abs());
+        worst = worst.max(crate::strain::max_principal_green(f0, f1));
     }
     worst
 }

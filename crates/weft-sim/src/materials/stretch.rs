@@ -82,15 +82,7 @@ impl StretchElement {
     /// the eigenvalues of `G = (FᵀF - I) / 2`, a symmetric 2×2 matrix.
     pub fn max_principal_strain(&self, x: &[DVec3; 3]) -> f64 {
         let (f0, f1) = self.deformation(x);
-        let (g00, g11, g01) = (
-            0.5 * (f0.dot(f0) - 1.0),
-            0.5 * (f1.dot(f1) - 1.0),
-            0.5 * f0.dot(f1),
-        );
-        let mean = 0.5 * (g00 + g11);
-        let half = 0.5 * (g00 - g11);
-        let radius = (half * half + g01 * g01).sqrt();
-        (mean + radius).abs().max((mean - radius).abs())
+        weft_geom::strain::max_principal_green(f0, f1)
     }
 
     /// Deformation gradient columns `f0, f1`.
