@@ -133,15 +133,20 @@ pub fn fallback_normal(primary: DVec3, dir: DVec3) -> DVec3 {
     if let Some(n) = unit(primary) {
         return n;
     }
-    let a = dir.abs();
-    let axis = if a.x <= a.y && a.x <= a.z {
+    unit(dir.cross(smallest_axis(dir))).unwrap_or(DVec3::Z)
+}
+
+/// The coordinate axis of `v`'s smallest absolute component (the first such
+/// axis on ties): the axis least parallel to `v`.
+pub fn smallest_axis(v: DVec3) -> DVec3 {
+    let a = v.abs();
+    if a.x <= a.y && a.x <= a.z {
         DVec3::X
     } else if a.y <= a.z {
         DVec3::Y
     } else {
         DVec3::Z
-    };
-    unit(dir.cross(axis)).unwrap_or(DVec3::Z)
+    }
 }
 
 /// Closest point of segment `[a, b]` to `p`: returns `(t, dist2, diff)` with the

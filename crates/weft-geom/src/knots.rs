@@ -788,14 +788,7 @@ fn layout(kind: KnotKind, w: f64, c: f64) -> Result<Layout, KnotError> {
             let c = crate::ribbon::resample(curve, rows)
                 .map_err(|e| KnotError::Ribbon { rope: r, source: e })?;
             let scale = crate::ribbon::polyline_length(&c) / len;
-            let hs: Vec<WidthHint> = hints[r]
-                .iter()
-                .map(|h| WidthHint {
-                    s: h.s * scale,
-                    half_length: h.half_length * scale,
-                    ..*h
-                })
-                .collect();
+            let hs: Vec<WidthHint> = hints[r].iter().map(|h| h.scaled(scale)).collect();
             let d = width_directions(&c, w, crate::ribbon::TWIST_WEIGHT, &hs);
             let cum = cumulative(&c);
             let cum3 = cumulative(curve);

@@ -273,14 +273,7 @@ fn vertex_tangents(c: &[DVec3]) -> Vec<DVec3> {
 
 /// A unit vector perpendicular to the unit vector `t`.
 fn any_perpendicular(t: DVec3) -> DVec3 {
-    let a = t.abs();
-    let axis = if a.x <= a.y && a.x <= a.z {
-        DVec3::X
-    } else if a.y <= a.z {
-        DVec3::Y
-    } else {
-        DVec3::Z
-    };
+    let axis = crate::distance::smallest_axis(t);
     (axis - t * t.dot(axis)).normalize()
 }
 
@@ -310,6 +303,18 @@ pub struct WidthHint {
     pub half_length: f64,
     pub direction: DVec3,
     pub weight: f64,
+}
+
+impl WidthHint {
+    /// The hint with its arc lengths multiplied by `scale` (mapping it onto a
+    /// resampled polyline of a slightly different length).
+    pub fn scaled(&self, scale: f64) -> Self {
+        Self {
+            s: self.s * scale,
+            half_length: self.half_length * scale,
+            ..*self
+        }
+    }
 }
 
 /// Unit width directions `d_i` (perpendicular to the vertex tangents, turning
@@ -561,14 +566,7 @@ pub fn ribbon_with_hints(
     // Rows are equally spaced in the arc length of `points`; map the hints'
     // arc lengths onto the resampled polyline's.
     let scale = polyline_length(&c) / polyline_length(points).max(f64::MIN_POSITIVE);
-    let hints: Vec<WidthHint> = hints
-        .iter()
-        .map(|h| WidthHint {
-            s: h.s * scale,
-            half_length: h.half_length * scale,
-            ..*h
-        })
-        .collect();
+    let hints: Vec<WidthHint> = hints.iter().map(|h| h.scaled(scale)).collect();
     let d = width_directions(&c, width, TWIST_WEIGHT, &hints);
     let mut positions = Vec::with_capacity(along * across);
     let mut rest = Vec::with_capacity(along * across);

@@ -25,14 +25,8 @@ pub fn grid(center: DVec3, eu: DVec3, ev: DVec3, size: [f64; 2], res: [usize; 2]
     let mut triangles = Vec::with_capacity(2 * (nu - 1) * (nv - 1));
     for j in 0..nv - 1 {
         for i in 0..nu - 1 {
-            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
-            if (i + j) % 2 == 0 {
-                triangles.push([a, b, c]);
-                triangles.push([a, c, d]);
-            } else {
-                triangles.push([a, b, d]);
-                triangles.push([b, c, d]);
-            }
+            let quad = [id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)];
+            push_quad(&mut triangles, quad, (i + j) % 2 == 0);
         }
     }
     TriMesh::new(positions, triangles)
@@ -194,17 +188,24 @@ pub fn tube(a: DVec3, b: DVec3, radius: f64, res: [usize; 2]) -> TriMesh {
     let mut triangles = Vec::with_capacity(2 * around * (along - 1));
     for j in 0..along - 1 {
         for i in 0..around {
-            let (p, q, r, s) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
-            if (i + j) % 2 == 0 {
-                triangles.push([p, q, r]);
-                triangles.push([p, r, s]);
-            } else {
-                triangles.push([p, q, s]);
-                triangles.push([q, r, s]);
-            }
+            let quad = [id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)];
+            push_quad(&mut triangles, quad, (i + j) % 2 == 0);
         }
     }
     TriMesh::new(positions, triangles)
+}
+
+/// Splits the quad `[a, b, c, d]` (in order around it) into two triangles
+/// along `a–c` or, when `!diagonal_ac`, along `b–d`; alternating the diagonal
+/// in a checkerboard keeps a grid free of a preferred shear direction.
+fn push_quad(triangles: &mut Vec<[u32; 3]>, [a, b, c, d]: [u32; 4], diagonal_ac: bool) {
+    if diagonal_ac {
+        triangles.push([a, b, c]);
+        triangles.push([a, c, d]);
+    } else {
+        triangles.push([a, b, d]);
+        triangles.push([b, c, d]);
+    }
 }
 
 /// Punches a round hole into `mesh`: removes every vertex closer than
