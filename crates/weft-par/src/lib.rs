@@ -9,8 +9,11 @@
 //!
 //! | module | what |
 //! |---|---|
+//! | [`metis`] | [`Metis`]: METIS partitions of the cloth's triangle dual graph |
 //! | [`threads`] | [`Threads`]: a rayon thread pool of its own |
 
+pub mod metis;
 pub mod threads;
 
+pub use metis::{build_world, Metis};
 pub use threads::Threads;

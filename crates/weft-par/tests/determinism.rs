@@ -1,18 +1,30 @@
-//! The same bits on any executor: `crumple` (friction and damping on) run on
-//! `Serial` and on `Threads` with 1 to 4 threads, each with 1, 4 and 16
-//! partitions, ends in one `state_hash` — with enough contact to mean it.
+//! The same bits on any executor and partitioning: `crumple` (friction and
+//! damping on) run on `Serial` and on `Threads` with 1 to 4 threads, with 1,
+//! 4, 16 and 64 METIS partitions, ends in one `state_hash` — with enough
+//! contact to mean it (asserted: rollbacks, peak active stencils, depth, and
+//! penalty stencils that couple two partitions).
+//!
+//! The hash is also compared with [`FIXTURE_HASH`], so the test profile
+//! (debug assertions on) and `--release` (`.ci/run` runs this file in both)
+//! are held to the same bits — and any change of the numerics shows up here.
 
 use std::path::Path;
 
 use weft_io::scene::load_scene;
 use weft_par::Threads;
-use weft_sim::{Engine, Executor, Serial, World};
+use weft_sim::{Engine, Executor, Serial};
+
+/// `state_hash` of the fixture below.
+const FIXTURE_HASH: &str = "a9602faf0c12c4545a72753375260422";
 
 struct Outcome {
     hash: String,
     rollbacks: u64,
     max_depth: u32,
     peak_active: u64,
+    /// Active penalty stencils coupling two partitions, and all of them, at
+    /// the window with the most active stencils.
+    spanning_at_peak: (usize, usize),
 }
 
 fn run<E: Executor>(exec: E, partitions: usize) -> Outcome {
@@ -20,52 +32,86 @@ fn run<E: Executor>(exec: E, partitions: usize) -> Outcome {
     let scene = load_scene(
         &path,
         &[
-            "size=150".into(),
-            "time.end=0.22".into(),
+            "size=300".into(),
+            "time.end=0.24".into(),
             "time.steps_per_window=25".into(),
             format!("partitions={partitions}"),
         ],
     )
     .unwrap();
-    let mut e = Engine::new(World::build(&scene.world).unwrap(), exec).unwrap();
+    let world = weft_par::build_world(&scene.world).unwrap();
+    assert_eq!(world.partitioning.count, partitions);
+    let mut e = Engine::new(world, exec).unwrap();
     let end = e.world.lattice.window_end_at_or_after(scene.end_time);
+    let mut peak = 0;
+    let mut spanning_at_peak = (0, 0);
     while e.world.tick < end {
         e.step_window().unwrap();
+        let active = &e.world.layers.stencils;
+        if active.len() > peak {
+            peak = active.len();
+            let p = &e.world.partitioning;
+            spanning_at_peak = (active.keys().filter(|k| p.spans(k)).count(), active.len());
+        }
     }
     Outcome {
         hash: e.state_hash(),
         rollbacks: e.totals.rollbacks,
         max_depth: e.totals.max_depth,
         peak_active: e.totals.max_active_stencils,
+        spanning_at_peak,
+    }
+}
+
+/// Every executor at `partitions` partitions ends in the fixture's hash.
+fn all_executors_agree(partitions: usize) {
+    let reference = run(Serial, partitions);
+    let label = format!("P = {partitions}");
+    assert_eq!(reference.hash, FIXTURE_HASH, "serial, {label}");
+    assert!(
+        reference.rollbacks >= 20,
+        "{label}: {} rollbacks",
+        reference.rollbacks
+    );
+    assert!(
+        reference.max_depth >= 5,
+        "{label}: depth {}",
+        reference.max_depth
+    );
+    assert!(
+        reference.peak_active >= 500,
+        "{label}: peak {}",
+        reference.peak_active
+    );
+    if partitions == 16 {
+        let (spanning, all) = reference.spanning_at_peak;
+        assert!(
+            4 * spanning >= all,
+            "P = 16: only {spanning} of {all} active penalty stencils span two partitions"
+        );
+    }
+    for threads in [1, 2, 3, 4] {
+        let o = run(Threads::new(threads).unwrap(), partitions);
+        assert_eq!(o.hash, FIXTURE_HASH, "threads = {threads}, {label}");
     }
 }
 
 #[test]
-fn serial_and_threads_agree_for_any_thread_and_partition_count() {
-    let reference = run(Serial, 1);
-    assert!(
-        reference.rollbacks >= 20,
-        "{} rollbacks",
-        reference.rollbacks
-    );
-    assert!(reference.max_depth >= 5, "depth {}", reference.max_depth);
-    assert!(
-        reference.peak_active >= 50,
-        "peak {}",
-        reference.peak_active
-    );
-    for partitions in [1, 4, 16] {
-        for threads in [1, 2, 3, 4] {
-            let o = run(Threads::new(threads).unwrap(), partitions);
-            assert_eq!(
-                o.hash, reference.hash,
-                "threads = {threads}, partitions = {partitions}"
-            );
-        }
-        assert_eq!(
-            run(Serial, partitions).hash,
-            reference.hash,
-            "serial, P = {partitions}"
-        );
-    }
+fn one_partition() {
+    all_executors_agree(1);
+}
+
+#[test]
+fn four_partitions() {
+    all_executors_agree(4);
+}
+
+#[test]
+fn sixteen_partitions() {
+    all_executors_agree(16);
+}
+
+#[test]
+fn sixty_four_partitions() {
+    all_executors_agree(64);
 }

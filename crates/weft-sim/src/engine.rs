@@ -36,6 +36,7 @@ use crate::error::SimError;
 use crate::executor::{Executor, Serial};
 use crate::layers::{penalty_kick, LayerState};
 use crate::state::EngineState;
+use crate::trace;
 use crate::trajectory::Trajectories;
 use crate::world::World;
 
@@ -80,6 +81,13 @@ fn distance_lower_bound(kind: StencilKind, d0: f64, x0: &[DVec3; 4], x: &[DVec3;
         .fold(0.0f64, |m, p| m.max(p.abs().max_element()));
     d0 - moved(0..split) - moved(split..4) - (1.0 + scale) * f64::powi(2.0, -40)
 }
+
+/// Below this many stencils in a batch the penalty stage runs inline: handing
+/// out tasks would cost more than it saves (the results are the same bits).
+const PARALLEL_MIN_STENCILS: usize = 256;
+
+/// Stencils per task of the penalty stage.
+const PENALTY_RUN: usize = 128;
 
 /// Passes of one window that may end in a non-finite value (each rolled back
 /// with more layers) before the run stops with [`SimError::NonFinite`].
@@ -128,6 +136,10 @@ struct Workspace {
     /// Per active stencil: (tick + 1 of the batch it was computed in, data).
     closest: Vec<StencilCache>,
     bounds: Vec<usize>,
+    /// Run bounds over the active stencils for the penalty stage.
+    run_bounds: Vec<usize>,
+    /// (layer, active index) of the batch's stencils inside their layer.
+    kick_items: Vec<(u32, u32)>,
     broad: BroadPhase,
 }
 
@@ -330,6 +342,7 @@ impl<E: Executor> Engine<E> {
     }
 
     fn run_window(&mut self) -> Result<WindowStats, SimError> {
+        let _span = trace::span_with("window", "window", self.world.window_index);
         let started = Instant::now();
         let t0 = self.world.tick;
         let t1 = t0 + self.world.lattice.window();
@@ -344,6 +357,7 @@ impl<E: Executor> Engine<E> {
         let mut stages = StageSeconds::default();
         loop {
             let clock = Instant::now();
+            let events_span = trace::span_with("events", "pass", rollbacks as u64);
             let mut counts = match self.run_events(t0, t1) {
                 Ok(c) => c,
                 Err(e) => {
@@ -351,12 +365,14 @@ impl<E: Executor> Engine<E> {
                     return Err(e);
                 }
             };
+            drop(events_span);
             stages.events += clock.elapsed().as_secs_f64();
             if let Some(e) = counts.interrupted.take() {
                 snap.restore(&mut self.world);
                 return Err(e);
             }
             let clock = Instant::now();
+            let broad_span = trace::span("broad");
             let candidates = {
                 let w = &self.world;
                 self.ws.broad.candidates(
@@ -366,9 +382,12 @@ impl<E: Executor> Engine<E> {
                     0.5 * w.schedule.eta_1,
                 )
             };
+            drop(broad_span);
             stages.broad += clock.elapsed().as_secs_f64();
             let clock = Instant::now();
+            let narrow_span = trace::span_with("narrow", "candidates", candidates.len() as u64);
             let reported = self.narrow_phase(&candidates);
+            drop(narrow_span);
             stages.narrow += clock.elapsed().as_secs_f64();
             if reported.is_empty() {
                 if let Some(e) = counts.truncated.take() {
@@ -377,6 +396,7 @@ impl<E: Executor> Engine<E> {
                     return Err(e);
                 }
                 let clock = Instant::now();
+                let _commit_span = trace::span("commit");
                 let retired = self.commit(&candidates);
                 self.world.tick = t1;
                 let mut stats = self.window_stats(
@@ -549,6 +569,7 @@ impl<E: Executor> Engine<E> {
         let ws = &mut self.ws;
         let n = w.x.len();
         if internal {
+            let _span = trace::span("internal tick");
             counts.internal_events += 1;
             for i in 0..n {
                 ws.xt[i] = Self::pos_at(w, i, t);
@@ -564,69 +585,131 @@ impl<E: Executor> Engine<E> {
                 ws.is_touched[i] = true;
             }
         }
-        // Penalty layers, in (layer, key) order. The closest-point data of a
-        // stencil is computed once per batch (positions are those at `t` for
-        // every layer) and cached with the batch's tick as stamp.
+        // Penalty layers, in (layer, key) order.
         let layer_clocks = if internal { &firing[1..] } else { firing };
-        for &l in layer_clocks {
-            let (eta_l, k_l) = (
-                layer_consts[l as usize - 1].0,
-                layer_consts[l as usize - 1].1,
-            );
-            let h_l = w.lattice.seconds(layer_consts[l as usize - 1].2);
-            for &a in &by_layer[l as usize - 1] {
-                let key = &active[a as usize].0;
-                counts.layer_events += 1;
-                let cache = &mut ws.closest[a as usize];
+        if let Some(&first) = layer_clocks.first() {
+            let xt = internal.then_some(&ws.xt[..]);
+            let eta_first = layer_consts[first as usize - 1].0;
+            // Phase 1: the closest-point data of every stencil of the batch,
+            // once per batch (positions are those at `t` for every layer),
+            // cached with the batch's tick as stamp. Every stencil firing now
+            // is in layer `first` (the list of the outermost firing layer
+            // holds the deeper ones), whose eta is the largest, so a stencil
+            // certainly outside it is outside every firing layer. Entries are
+            // independent: they are filled on the executor in fixed runs.
+            let refresh = |a: usize, cache: &mut StencilCache| {
+                let (key, depth) = &active[a];
+                if *depth < first {
+                    return;
+                }
                 if cache.stamp != t + 1 {
                     cache.stamp = t + 1;
                     cache.closest = None;
                     cache.lower = f64::NEG_INFINITY;
                 }
-                if cache.closest.is_none() {
-                    let x = key.v.map(|i| {
-                        if internal {
-                            ws.xt[i as usize]
-                        } else {
-                            Self::pos_at(w, i as usize, t)
+                let x = key.v.map(|i| match xt {
+                    Some(xt) => xt[i as usize],
+                    None => Self::pos_at(w, i as usize, t),
+                });
+                if let Some((d0, x0)) = &cache.anchor {
+                    if cache.lower == f64::NEG_INFINITY {
+                        cache.lower = distance_lower_bound(key.kind, *d0, x0, &x);
+                    }
+                }
+                // Certainly outside every firing layer: its kicks are zero,
+                // so skipping the evaluation leaves the same bits.
+                if cache.lower >= eta_first {
+                    return;
+                }
+                let c = stencil_closest(key.kind, &x);
+                cache.closest = Some(c);
+                cache.anchor = Some((c.d, x));
+            };
+            let union = &by_layer[first as usize - 1];
+            // Spans only for the batches large enough to run on the executor
+            // (the many small ones would flood the timeline).
+            let big = union.len() >= PARALLEL_MIN_STENCILS;
+            let closest_span =
+                big.then(|| trace::span_with("penalty closest", "stencils", union.len() as u64));
+            if big {
+                let n = active.len();
+                ws.run_bounds.clear();
+                ws.run_bounds
+                    .extend((0..=n.div_ceil(PENALTY_RUN)).map(|k| (k * PENALTY_RUN).min(n)));
+                self.exec
+                    .for_each_chunk(&mut ws.closest, &ws.run_bounds, &|k, run| {
+                        for (j, cache) in run.iter_mut().enumerate() {
+                            refresh(k * PENALTY_RUN + j, cache);
                         }
                     });
-                    if let Some((d0, x0)) = &cache.anchor {
-                        if cache.lower == f64::NEG_INFINITY {
-                            cache.lower = distance_lower_bound(key.kind, *d0, x0, &x);
+            } else {
+                for &a in union {
+                    refresh(a as usize, &mut ws.closest[a as usize]);
+                }
+            }
+            drop(closest_span);
+            for &a in union {
+                if let Some(c) = &ws.closest[a as usize].closest {
+                    counts.min_separation = counts.min_separation.min(c.d);
+                }
+            }
+            // Phase 2: the kicks of stencils inside their layer, computed
+            // independently (they read the velocities at the start of the
+            // batch) and then summed per vertex in (layer, key) order.
+            ws.kick_items.clear();
+            for &l in layer_clocks {
+                let eta_l = layer_consts[l as usize - 1].0;
+                let list = &by_layer[l as usize - 1];
+                counts.layer_events += list.len() as u64;
+                for &a in list {
+                    if let Some(c) = &ws.closest[a as usize].closest {
+                        if c.d < eta_l {
+                            ws.kick_items.push((l, a)); // else a zero kick (NaN too)
                         }
                     }
-                    // Certainly outside this layer: its kick is zero, so
-                    // skipping the evaluation leaves the same bits.
-                    if cache.lower >= eta_l {
-                        continue;
-                    }
-                    let c = stencil_closest(key.kind, &x);
-                    counts.min_separation = counts.min_separation.min(c.d);
-                    cache.closest = Some(c);
-                    cache.anchor = Some((c.d, x));
                 }
-                let c = cache.closest.expect("computed above");
-                if !(c.d < eta_l) {
-                    continue; // outside the layer: a zero kick (NaN too)
-                }
+            }
+            let closest = &ws.closest;
+            let kick_of = |&(l, a): &(u32, u32)| {
+                let key = &active[a as usize].0;
+                let (eta_l, k_l, step) = layer_consts[l as usize - 1];
+                let c = closest[a as usize].closest.expect("inside the layer");
                 let v = key.v.map(|i| w.v[i as usize]);
                 let inv = key.v.map(|i| w.inv_mass[i as usize]);
                 let mu = w.stencil_friction(key);
-                if let Some(k) = penalty_kick(eta_l, k_l, h_l, &c, &v, &inv, mu) {
-                    counts.layer_kicks += 1;
-                    for j in 0..4 {
-                        let i = key.v[j] as usize;
-                        if inv[j] > 0.0 {
-                            ws.acc[i] += k.normal[j];
-                            if mu > 0.0 {
-                                ws.friction[i] += k.friction[j];
-                                ws.friction_max[i] = ws.friction_max[i].max(k.friction[j].length());
-                            }
-                            if !ws.is_touched[i] {
-                                ws.is_touched[i] = true;
-                                ws.touched.push(i as u32);
-                            }
+                penalty_kick(eta_l, k_l, w.lattice.seconds(step), &c, &v, &inv, mu).map(|k| (k, mu))
+            };
+            let items = &ws.kick_items;
+            let big = items.len() >= PARALLEL_MIN_STENCILS;
+            let _kicks_span =
+                big.then(|| trace::span_with("penalty kicks", "stencils", items.len() as u64));
+            let kicks: Vec<_> = if big {
+                self.exec
+                    .map(items.len().div_ceil(PENALTY_RUN), &|r| {
+                        let run = &items[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(items.len())];
+                        run.iter().map(kick_of).collect::<Vec<_>>()
+                    })
+                    .into_iter()
+                    .flatten()
+                    .collect()
+            } else {
+                items.iter().map(kick_of).collect()
+            };
+            for (&(_, a), kick) in items.iter().zip(kicks) {
+                let Some((k, mu)) = kick else { continue };
+                let key = &active[a as usize].0;
+                counts.layer_kicks += 1;
+                for j in 0..4 {
+                    let i = key.v[j] as usize;
+                    if w.inv_mass[i] > 0.0 {
+                        ws.acc[i] += k.normal[j];
+                        if mu > 0.0 {
+                            ws.friction[i] += k.friction[j];
+                            ws.friction_max[i] = ws.friction_max[i].max(k.friction[j].length());
+                        }
+                        if !ws.is_touched[i] {
+                            ws.is_touched[i] = true;
+                            ws.touched.push(i as u32);
                         }
                     }
                 }
@@ -704,6 +787,7 @@ impl<E: Executor> Engine<E> {
         let traj = &self.traj;
         let tasks = candidates.len().div_ceil(TASK);
         let answers = self.exec.map(tasks, &|t| {
+            let _span = trace::span_with("narrow task", "first", (t * TASK) as u64);
             let mut stats = CcdStats::default();
             let mut reported = Vec::new();
             for key in &candidates[t * TASK..((t + 1) * TASK).min(candidates.len())] {
@@ -742,6 +826,7 @@ impl<E: Executor> Engine<E> {
         // Each stencil's new state depends on its own certificates only, so
         // the stencils are decided on the executor and applied in key order.
         let decided = self.exec.map(entries.len().div_ceil(TASK), &|t| {
+            let _span = trace::span_with("commit task", "first", (t * TASK) as u64);
             let mut ccd = CcdStats::default();
             let run = &entries[t * TASK..((t + 1) * TASK).min(entries.len())];
             let states: Vec<(LayerState, u64)> = run

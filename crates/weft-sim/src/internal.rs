@@ -32,6 +32,11 @@ pub struct InternalForces {
     pub hinge_material: Vec<u16>,
     pub materials: Vec<Material>,
     pub partitions: Vec<Partition>,
+    /// Storage index of each stretch element and hinge in global key order
+    /// (storage is partition-major): every sum over elements runs in this
+    /// order, so its bits do not depend on the partitioning.
+    stretch_by_key: Vec<u32>,
+    hinge_by_key: Vec<u32>,
     /// Per-vertex CSR of output slots in global key order.
     incidence_offsets: Vec<u32>,
     incidence: Vec<u32>,
@@ -40,8 +45,9 @@ pub struct InternalForces {
 
 impl InternalForces {
     /// Builds the stencils of cloth triangles (`tri_material[f] = Some(m)`) and
-    /// of interior edges between two cloth triangles; `partitions` contiguous
-    /// chunks of cloth triangles in input order.
+    /// of interior edges between two cloth triangles, stored partition by
+    /// partition: `part_of_tri[f] < n_parts` for every cloth triangle (a hinge
+    /// belongs to the partition of its first face).
     pub fn build(
         triangles: &[[u32; 3]],
         tri_material: &[Option<u16>],
@@ -49,16 +55,12 @@ impl InternalForces {
         rest: &[DVec3],
         materials_list: &[Material],
         inv_mass: &[f64],
-        partitions: usize,
+        part_of_tri: &[u32],
+        n_parts: usize,
     ) -> Result<Self, (u32, MaterialError)> {
         let cloth: Vec<u32> = (0..triangles.len() as u32)
             .filter(|&f| tri_material[f as usize].is_some())
             .collect();
-        let n_parts = partitions.clamp(1, cloth.len().max(1));
-        let mut part_of_tri = vec![NONE; triangles.len()];
-        for (k, &f) in cloth.iter().enumerate() {
-            part_of_tri[f as usize] = (k * n_parts / cloth.len()) as u32;
-        }
         // (partition, global key) of every element.
         let mut stretch_keys: Vec<(u32, u32)> = cloth
             .iter()
@@ -154,6 +156,11 @@ impl InternalForces {
             incidence_offsets[i + 1] += incidence_offsets[i];
         }
         let incidence = inc.iter().map(|e| e.4).collect();
+        let by_key = |keys: &[(u32, u32)]| {
+            let mut order: Vec<u32> = (0..keys.len() as u32).collect();
+            order.sort_unstable_by_key(|&i| keys[i as usize].1);
+            order
+        };
         let damped = materials_list
             .iter()
             .any(|m| m.stretch_damping > 0.0 || m.bend_damping > 0.0);
@@ -164,6 +171,8 @@ impl InternalForces {
             hinge_material,
             materials: materials_list.to_vec(),
             partitions: parts,
+            stretch_by_key: by_key(&stretch_keys),
+            hinge_by_key: by_key(&hinge_keys),
             incidence_offsets,
             incidence,
             damped,
@@ -199,6 +208,7 @@ impl InternalForces {
         out: &mut [DVec3],
     ) {
         exec.for_each_chunk(out, bounds, &|p, chunk: &mut [DVec3]| {
+            let _span = crate::trace::span_with("partition", "partition", p as u64);
             let part = &self.partitions[p];
             let mut k = 0;
             for s in part.stretch.clone() {
@@ -248,34 +258,49 @@ impl InternalForces {
         sum
     }
 
-    /// Elastic energy (stretch + bend) at positions `x`.
+    /// Elastic energy (stretch + bend) at positions `x`, summed in key order.
     pub fn energy(&self, x: &[DVec3]) -> f64 {
         let mut e = 0.0;
-        for (s, el) in self.stretch.iter().enumerate() {
-            let m = &self.materials[self.stretch_material[s] as usize];
+        for &s in &self.stretch_by_key {
+            let el = &self.stretch[s as usize];
+            let m = &self.materials[self.stretch_material[s as usize] as usize];
             e += el.energy(&el.verts.map(|i| x[i as usize]), m);
         }
-        for (h, el) in self.hinges.iter().enumerate() {
-            let m = &self.materials[self.hinge_material[h] as usize];
+        for &h in &self.hinge_by_key {
+            let el = &self.hinges[h as usize];
+            let m = &self.materials[self.hinge_material[h as usize] as usize];
             e += el.energy(&el.verts.map(|i| x[i as usize]), m.bending_stiffness);
         }
         e
     }
 
-    /// A borrowed view of all elements, for assembled quantities.
-    pub fn model(&self) -> ElasticModel<'_> {
-        ElasticModel {
-            stretch: &self.stretch,
-            stretch_material: &self.stretch_material,
-            hinges: &self.hinges,
-            hinge_material: &self.hinge_material,
-            materials: &self.materials,
+    /// A copy of all elements in global key order, for assembled quantities
+    /// (the stable step, the damping limit) whose sums must not depend on the
+    /// partitioning; [`KeyOrdered::model`] views it.
+    pub fn key_ordered(&self) -> KeyOrdered {
+        let pick = |order: &[u32], material: &[u16]| -> Vec<u16> {
+            order.iter().map(|&i| material[i as usize]).collect()
+        };
+        KeyOrdered {
+            stretch: self
+                .stretch_by_key
+                .iter()
+                .map(|&i| self.stretch[i as usize].clone())
+                .collect(),
+            stretch_material: pick(&self.stretch_by_key, &self.stretch_material),
+            hinges: self
+                .hinge_by_key
+                .iter()
+                .map(|&i| self.hinges[i as usize].clone())
+                .collect(),
+            hinge_material: pick(&self.hinge_by_key, &self.hinge_material),
+            materials: self.materials.clone(),
         }
     }
 
     /// Largest angular frequency of the assembled rest system.
     pub fn max_frequency(&self, rest: &[DVec3], mass: &[f64]) -> f64 {
-        self.model().max_frequency(rest, mass)
+        self.key_ordered().model().max_frequency(rest, mass)
     }
 
     /// Rejects damping above its explicit stability limit at step `h`
@@ -290,7 +315,30 @@ impl InternalForces {
         if !self.damped {
             return Ok(());
         }
-        let gamma = self.model().max_damping_rate(rest, mass);
+        let gamma = self.key_ordered().model().max_damping_rate(rest, mass);
         materials::check_damping(h, omega_max, gamma)
+    }
+}
+
+/// All elements in global key order (see [`InternalForces::key_ordered`]).
+#[derive(Clone, Debug)]
+pub struct KeyOrdered {
+    pub stretch: Vec<StretchElement>,
+    pub stretch_material: Vec<u16>,
+    pub hinges: Vec<HingeElement>,
+    pub hinge_material: Vec<u16>,
+    pub materials: Vec<Material>,
+}
+
+impl KeyOrdered {
+    /// A borrowed view for assembled quantities.
+    pub fn model(&self) -> ElasticModel<'_> {
+        ElasticModel {
+            stretch: &self.stretch,
+            stretch_material: &self.stretch_material,
+            hinges: &self.hinges,
+            hinge_material: &self.hinge_material,
+            materials: &self.materials,
+        }
     }
 }

@@ -8,9 +8,11 @@
 //! |---|---|
 //! | [`clock`] | integer time: ticks, the lattice, windows |
 //! | [`materials`] | stretch, bend, damping, lumped masses, stable step |
-//! | [`internal`] | internal stencils split into partitions, ordered per-vertex folds |
+//! | [`internal`] | internal stencils stored partition by partition, ordered per-vertex folds |
+//! | [`partition`] | the partitioner trait, the contiguous fallback, a world's partition layout |
 //! | [`kinematics`] | scripted motion of obstacles and pinned vertices |
 //! | [`layers`] | the penalty-layer schedule, active-layer set, penalty and friction kicks |
+//! | [`trace`] | timeline spans per stage and task, Chrome-trace JSON |
 //! | [`trajectory`] | per-window breakpoint storage under a memory budget |
 //! | [`broad`] | 26-DOP BVH broad phase with stencil-level filtering |
 //! | [`engine`] | the window / detect / rollback / commit loop |
@@ -34,7 +36,9 @@ pub mod internal;
 pub mod kinematics;
 pub mod layers;
 pub mod materials;
+pub mod partition;
 pub mod state;
+pub mod trace;
 pub mod trajectory;
 pub mod world;
 

@@ -16,6 +16,7 @@ use crate::internal::InternalForces;
 use crate::kinematics::{Motion, Script};
 use crate::layers::{ActiveLayers, LayerSchedule};
 use crate::materials::{self, Material};
+use crate::partition::{Contiguous, Partitioner, Partitioning};
 
 /// What an object is.
 #[derive(Clone, Debug, PartialEq)]
@@ -64,8 +65,8 @@ pub struct WorldSpec {
     pub contact: ContactConfig,
     pub time: TimeConfig,
     pub limits: LimitsConfig,
-    /// Number of partitions the internal forces are split into (contiguous
-    /// chunks of triangles in input order; results do not depend on it).
+    /// Number of partitions the cloth triangles are split into (0: automatic,
+    /// see [`crate::partition::auto_count`]; results do not depend on it).
     pub partitions: usize,
 }
 
@@ -109,6 +110,8 @@ pub struct World {
     pub omega_max: f64,
     /// Friction coefficient of each vertex's object.
     pub vertex_friction: Vec<f64>,
+    /// Which partition each triangle and vertex belongs to.
+    pub partitioning: Partitioning,
 }
 
 impl World {
@@ -130,9 +133,15 @@ impl World {
         }
     }
 
-    /// Builds and validates a world. Does not check the initial state for
-    /// contact (see [`crate::engine::Engine::new`]).
+    /// Builds and validates a world, partitioned into contiguous runs of
+    /// triangles. Does not check the initial state for contact (see
+    /// [`crate::engine::Engine::new`]).
     pub fn build(spec: &WorldSpec) -> Result<Self, SimError> {
+        Self::build_with(spec, &Contiguous)
+    }
+
+    /// [`World::build`] with the partitions made by `partitioner`.
+    pub fn build_with(spec: &WorldSpec, partitioner: &dyn Partitioner) -> Result<Self, SimError> {
         if !spec.gravity.is_finite() {
             return Err(SimError::Config(format!(
                 "gravity {:?} is not finite",
@@ -316,6 +325,16 @@ impl World {
             }
         }
 
+        let is_cloth: Vec<bool> = tri_material.iter().map(Option::is_some).collect();
+        let partitioning = Partitioning::build(
+            partitioner,
+            spec.partitions,
+            &all.triangles,
+            &is_cloth,
+            &topology,
+            nv,
+        )
+        .map_err(|m| SimError::Config(format!("partitioning: {m}")))?;
         let internal = InternalForces::build(
             &all.triangles,
             &tri_material,
@@ -323,7 +342,8 @@ impl World {
             &rest_all,
             &materials_list,
             &inv_mass,
-            spec.partitions.max(1),
+            &partitioning.of_triangle,
+            partitioning.count,
         )
         .map_err(|(f, e)| SimError::Material {
             object: place_of_triangle(&objects, f).object,
@@ -458,6 +478,7 @@ impl World {
             layers: ActiveLayers::default(),
             omega_max,
             vertex_friction,
+            partitioning,
         };
         // Kinematic vertices start on the chord to their scripted position one
         // internal step later.

@@ -9,7 +9,6 @@ use clap::Args;
 use serde::Serialize;
 use weft_io::scene::load_scene;
 use weft_sim::trajectory::BYTES_PER_BREAKPOINT;
-use weft_sim::World;
 
 #[derive(Debug, Args)]
 pub struct InfoArgs {
@@ -43,6 +42,11 @@ pub struct SceneInfo {
     pub triangles: usize,
     pub hinges: usize,
     pub internal_stencils: usize,
+    /// Partitions of the cloth triangles and how they were made.
+    pub partitions: usize,
+    pub partition_method: String,
+    /// Interior edges whose two triangles lie in different partitions.
+    pub cut_edges: usize,
     /// Largest |principal Green strain| of the start shape against the rest shape.
     pub max_initial_strain: f64,
     pub omega_max: f64,
@@ -62,7 +66,7 @@ pub struct SceneInfo {
 
 /// Builds the scene and collects its figures.
 pub fn scene_info(scene: &weft_io::scene::Scene) -> anyhow::Result<SceneInfo> {
-    let w = World::build(&scene.world)?;
+    let w = weft_par::build_world(&scene.world)?;
     let objects = w
         .objects
         .iter()
@@ -98,6 +102,17 @@ pub fn scene_info(scene: &weft_io::scene::Scene) -> anyhow::Result<SceneInfo> {
         triangles: w.triangles.len(),
         hinges: w.internal.hinges.len(),
         internal_stencils: w.internal.num_stencils(),
+        partitions: w.partitioning.count,
+        partition_method: w.partitioning.method.into(),
+        cut_edges: w
+            .topology
+            .edge_faces
+            .iter()
+            .filter(|&&[a, b]| {
+                let p = &w.partitioning.of_triangle;
+                b != weft_core::NONE && p[a as usize] != weft_core::NONE && p[b as usize] != p[a as usize]
+            })
+            .count(),
         max_initial_strain,
         omega_max: w.omega_max,
         internal_step: w.lattice.h_el(),
@@ -129,6 +144,10 @@ pub fn run(a: InfoArgs) -> anyhow::Result<ExitCode> {
     println!(
         "total        {} vertices, {} triangles, {} hinges, {} internal stencils",
         i.vertices, i.triangles, i.hinges, i.internal_stencils
+    );
+    println!(
+        "partitions       {} ({}), {} interior edges cut",
+        i.partitions, i.partition_method, i.cut_edges
     );
     println!(
         "initial strain   max |principal Green strain| {:.3e}",

@@ -154,6 +154,11 @@ pub fn parse_scene(text: &str, path: &Path, overrides: &[String]) -> Result<Scen
     if let Some(time) = table.get_mut("time").and_then(|t| t.as_table_mut()) {
         time.remove("end");
     }
+    // Nor does the partition count: results never depend on it, so a run
+    // resumes on any partitioning.
+    if let Some(root) = table.as_table_mut() {
+        root.remove("partitions");
+    }
     // `toml::Table` keeps keys sorted, so equal scenes print equal text.
     let canonical = toml::to_string(&table).unwrap_or_default();
     scene.fingerprint = format!("{:032x}", xxhash_rust::xxh3::xxh3_128(canonical.as_bytes()));

@@ -35,7 +35,8 @@ pub struct SceneFile {
     /// Where a renderer looks from (optional).
     #[serde(default)]
     pub camera: Option<CameraSection>,
-    /// Partitions of the internal forces (results never depend on it).
+    /// Partitions of the cloth triangles, the unit of parallel work (0: one
+    /// per 512 cloth triangles, 1 to 256; results never depend on it).
     #[serde(default = "default_partitions")]
     pub partitions: usize,
 }
@@ -45,7 +46,7 @@ fn default_gravity() -> [f64; 3] {
 }
 
 fn default_partitions() -> usize {
-    1
+    0
 }
 
 #[derive(Clone, Debug, Deserialize)]

@@ -81,6 +81,34 @@ pub struct RunArgs {
     /// Print nothing but the final JSON line.
     #[arg(long)]
     pub quiet: bool,
+    /// Write a timeline of the run to FILE (Chrome-trace JSON; open it in
+    /// Perfetto or chrome://tracing): one track per thread, spans per stage and
+    /// per task. At most 400,000 spans are kept.
+    #[arg(long, value_name = "FILE")]
+    pub trace: Option<PathBuf>,
+    /// Trace only windows A to B-1 (indices counted from the start of the run).
+    #[arg(long, value_name = "A..B", requires = "trace", value_parser = parse_window_range)]
+    pub trace_windows: Option<std::ops::Range<u64>>,
+}
+
+/// Parses `A..B` (`A..` for "from A on") into a range of window indices.
+fn parse_window_range(s: &str) -> Result<std::ops::Range<u64>, String> {
+    let (a, b) = s
+        .split_once("..")
+        .ok_or_else(|| format!("'{s}' is not a range A..B of window indices"))?;
+    let num = |x: &str, default: u64| -> Result<u64, String> {
+        if x.trim().is_empty() {
+            return Ok(default);
+        }
+        x.trim()
+            .parse()
+            .map_err(|_| format!("'{x}' in '{s}' is not a window index"))
+    };
+    let (a, b) = (num(a, 0)?, num(b, u64::MAX)?);
+    if a >= b {
+        return Err(format!("the range '{s}' holds no window"));
+    }
+    Ok(a..b)
 }
 
 /// The summary printed as the last line.
@@ -121,6 +149,8 @@ pub struct RunJob<'a> {
     /// Render `out/preview.*` when the run completes.
     pub preview: bool,
     pub command_line: Vec<String>,
+    /// Record timeline spans during these windows (see `weft_sim::trace`).
+    pub trace_windows: Option<std::ops::Range<u64>>,
 }
 
 pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
@@ -161,13 +191,23 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
         stop,
         preview: !a.no_preview,
         command_line,
+        trace_windows: a
+            .trace
+            .as_ref()
+            .map(|_| a.trace_windows.clone().unwrap_or(0..u64::MAX)),
     };
     let threads = Threads::new(a.threads).context("cannot start the worker threads")?;
-    let summary = if threads.threads() == 1 {
-        execute(job, Serial)?
+    let result = if threads.threads() == 1 {
+        execute(job, Serial)
     } else {
-        execute(job, threads)?
+        execute(job, threads)
     };
+    // The timeline is written whatever the outcome: a failed run's is the
+    // one worth reading.
+    if let Some(path) = &a.trace {
+        write_trace(path, &scene.name, a.quiet)?;
+    }
+    let summary = result?;
     println!("{}", serde_json::to_string(&summary)?);
     Ok(ExitCode::SUCCESS)
 }
@@ -183,13 +223,45 @@ pub fn simulate(scene: &Scene, out: &Path, quiet: bool) -> anyhow::Result<RunSum
         stop: StopRequest::new(),
         preview: false,
         command_line: Vec::new(),
+        trace_windows: None,
     };
     execute(job, Serial)
 }
 
+/// Writes the recorded spans to `path` as Chrome-trace JSON.
+fn write_trace(path: &Path, scene: &str, quiet: bool) -> anyhow::Result<()> {
+    weft_sim::trace::set_recording(false);
+    let (spans, tracks, dropped) = weft_sim::trace::take();
+    let mut text = Vec::new();
+    weft_sim::trace::write_chrome_json(
+        &mut text,
+        0,
+        &format!("weft {scene}"),
+        &spans,
+        &tracks,
+        dropped,
+    )?;
+    weft_io::atomic::write_atomic(path, &text)
+        .with_context(|| format!("cannot write the trace {}", path.display()))?;
+    if !quiet {
+        eprintln!(
+            "weft: trace of {} spans on {} threads written to {}{}",
+            spans.len(),
+            tracks.len(),
+            path.display(),
+            if dropped > 0 {
+                format!(" ({dropped} more spans over the cap were not kept)")
+            } else {
+                String::new()
+            }
+        );
+    }
+    Ok(())
+}
+
 /// Hash of the scene text with overrides (end time excluded) and of the world
 /// it builds: what a checkpoint must match to be resumed.
-fn scene_hash(scene: &Scene, world: &World) -> String {
+pub(crate) fn scene_hash(scene: &Scene, world: &World) -> String {
     let text = format!(
         "{}:{}",
         scene.fingerprint,
@@ -203,7 +275,7 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
     let started = Instant::now();
     let (scene, out) = (job.scene, job.out);
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let world = World::build(&scene.world)?;
+    let world = weft_par::build_world(&scene.world)?;
     let hash = scene_hash(scene, &world);
     let mut engine = Engine::new(world, exec)?;
     let machine = Machine::this();
@@ -311,6 +383,9 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
     outputs.frames_due(&engine.world)?;
     let mut stopped_by = None;
     while engine.world.tick < end_tick {
+        if let Some(range) = &job.trace_windows {
+            weft_sim::trace::set_recording(range.contains(&engine.world.window_index));
+        }
         let stats = match engine.step_window() {
             Ok(s) => s,
             Err(SimError::Interrupted { .. }) => {
