@@ -38,6 +38,10 @@ impl Executor for Threads {
         bounds: &[usize],
         task: &(dyn Fn(usize, &mut [T]) + Sync),
     ) {
+        if bounds.len() <= 2 {
+            // One chunk (or none): no one to share it with.
+            return weft_sim::Serial.for_each_chunk(data, bounds, task);
+        }
         let mut chunks = Vec::with_capacity(bounds.len().saturating_sub(1));
         let mut rest = data;
         for k in 0..bounds.len().saturating_sub(1) {
@@ -51,6 +55,9 @@ impl Executor for Threads {
     }
 
     fn map<R: Send>(&self, n: usize, f: &(dyn Fn(usize) -> R + Sync)) -> Vec<R> {
+        if n <= 1 {
+            return (0..n).map(f).collect();
+        }
         // `collect` on an indexed parallel iterator keeps index order.
         self.pool
             .install(|| (0..n).into_par_iter().map(f).collect())

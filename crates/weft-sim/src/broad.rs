@@ -11,25 +11,76 @@
 //! the result is sorted and deduplicated. Finally each stencil's two primitives
 //! must have overlapping DOPs of their own (inflated likewise).
 
-use weft_core::StencilKey;
+//!
+//! # On an executor
+//!
+//! [`BroadPhase::candidates_on`] computes the vertex and triangle DOPs in fixed
+//! runs of [`RUN`] elements (each element is a function of its inputs alone),
+//! refits the tree serially (`O(n)`), and splits the self-traversal into at
+//! least [`MIN_TASKS`] node pairs ([`Bvh::self_overlap_tasks`]); each task
+//! generates the stencils of its triangle pairs, applies the stencil-level filter
+//! to each as it is generated, and sorts and deduplicates the survivors. The
+//! tasks' keys are then concatenated, sorted and deduplicated. The filter is a
+//! pure function of the key ([`primitives_overlap`]), so filtering before
+//! deduplication keeps the same set.
+//!
+//! The filter reads DOPs inflated once per vertex instead of inflating each
+//! primitive's hull, with the same answers bit for bit: per direction,
+//! inflation maps `lo` to `next_down(lo - r)` and `hi` to `next_up(hi + r)`,
+//! both monotone (rounding is monotone), and a monotone map commutes with `min`
+//! / `max` — so the union of inflated non-empty DOPs *is* the inflated union
+//! (`±0` round to the same `-r`; no NaN in a non-empty DOP; `r <= 0` or NaN
+//! inflates nothing either way). A face's hull is then its triangle's leaf and an
+//! edge's the union of its two inflated vertex DOPs. If some vertex DOP is empty
+//! (non-finite positions) the filter falls back to [`primitives_overlap`].
+//!
+//! Which task finds a pair, and in which order tasks run, changes nothing: the
+//! result is the sorted set of keys, the same on every executor and as a
+//! serial pass.
+
+use weft_core::{StencilKey, StencilKind};
 use weft_geom::bvh::Bvh;
 use weft_geom::dop::Dop26;
 
+use crate::executor::{Executor, Serial};
 use crate::trajectory::Trajectories;
+
+/// Vertices (or triangles) per DOP task.
+pub const RUN: usize = 1024;
+
+/// Traversal tasks requested from the BVH (8 × 64: many more than threads, so
+/// work stealing evens out their unequal sizes).
+pub const MIN_TASKS: usize = 512;
 
 /// Reusable broad-phase workspace.
 #[derive(Clone, Debug, Default)]
 pub struct BroadPhase {
-    vertex_dops: Vec<Dop26>,
+    /// per vertex: the DOP of its breakpoints, and that DOP inflated.
+    vertex_dops: Vec<[Dop26; 2]>,
     tri_dops: Vec<Dop26>,
     bvh: Option<Bvh>,
-    pairs: Vec<(u32, u32)>,
+    /// chunk bounds of the current parallel step.
+    bounds: Vec<usize>,
+    /// traversal tasks (node pairs).
+    tasks: Vec<(u32, u32)>,
+    /// one output buffer per traversal task (kept across calls).
+    outs: Vec<TaskOut>,
     /// Triangle pairs found by the last pass.
     pub last_pairs: usize,
 }
 
+/// What one traversal task found.
+#[derive(Clone, Debug, Default)]
+struct TaskOut {
+    /// its filtered stencil keys, sorted and deduplicated.
+    keys: Vec<StencilKey>,
+    /// triangle pairs it found.
+    pairs: usize,
+}
+
 impl BroadPhase {
-    /// Candidate stencils of the window whose trajectories are `traj`.
+    /// Candidate stencils of the window whose trajectories are `traj`, on the
+    /// calling thread (`candidates_on(&Serial, ..)`).
     pub fn candidates(
         &mut self,
         triangles: &[[u32; 3]],
@@ -37,63 +88,225 @@ impl BroadPhase {
         traj: &Trajectories,
         inflate: f64,
     ) -> Vec<StencilKey> {
-        self.vertex_dops.clear();
-        for i in 0..traj.len() {
-            let t = traj.of(i);
-            let mut d = Dop26::empty();
-            for &p in t.points {
-                d.add_point(p);
+        self.candidates_on(&Serial, triangles, inv_mass, traj, inflate)
+    }
+
+    /// Candidate stencils of the window whose trajectories are `traj`, computed
+    /// on `exec`: sorted, deduplicated, the same on every executor.
+    pub fn candidates_on<E: Executor>(
+        &mut self,
+        exec: &E,
+        triangles: &[[u32; 3]],
+        inv_mass: &[f64],
+        traj: &Trajectories,
+        inflate: f64,
+    ) -> Vec<StencilKey> {
+        let Self {
+            vertex_dops,
+            tri_dops,
+            bvh,
+            bounds,
+            tasks,
+            outs,
+            last_pairs,
+        } = self;
+
+        // Vertex DOPs: every breakpoint of the vertex in the window.
+        vertex_dops.resize(traj.len(), [Dop26::empty(); 2]);
+        runs(traj.len(), bounds);
+        exec.for_each_chunk(vertex_dops, bounds, &|k, chunk: &mut [[Dop26; 2]]| {
+            for (i, d) in (k * RUN..).zip(chunk.iter_mut()) {
+                let mut raw = Dop26::empty();
+                for &p in traj.of(i).points {
+                    raw.add_point(p);
+                }
+                let mut inflated = raw;
+                inflated.inflate(inflate);
+                *d = [raw, inflated];
             }
-            self.vertex_dops.push(d);
-        }
-        self.tri_dops.clear();
-        for t in triangles {
-            let mut d = self.vertex_dops[t[0] as usize];
-            d.merge(&self.vertex_dops[t[1] as usize]);
-            d.merge(&self.vertex_dops[t[2] as usize]);
-            d.inflate(inflate);
-            self.tri_dops.push(d);
-        }
-        match &mut self.bvh {
-            Some(b) if b.len() == self.tri_dops.len() => b.refit(&self.tri_dops),
-            slot => *slot = Some(Bvh::build(&self.tri_dops)),
-        }
-        self.pairs.clear();
-        if let Some(bvh) = &self.bvh {
-            let pairs = &mut self.pairs;
-            bvh.self_overlaps(|a, b| pairs.push((a, b)));
-        }
-        self.last_pairs = self.pairs.len();
-        let mut keys = Vec::with_capacity(self.pairs.len() * 4);
-        for &(a, b) in &self.pairs {
-            stencils_of_pair(
-                triangles[a as usize],
-                triangles[b as usize],
-                inv_mass,
-                &mut keys,
-            );
-        }
-        keys.sort_unstable();
-        keys.dedup();
-        // Stencil-level filter: the two primitives' own DOPs must overlap.
-        let vd = &self.vertex_dops;
-        let hull = |ids: &[u32]| {
-            let mut d = vd[ids[0] as usize];
-            for &i in &ids[1..] {
-                d.merge(&vd[i as usize]);
-            }
-            d.inflate(inflate);
-            d
-        };
-        keys.retain(|k| {
-            let split = match k.kind {
-                weft_core::StencilKind::VertexFace => 1,
-                weft_core::StencilKind::EdgeEdge => 2,
-            };
-            hull(&k.v[..split]).overlaps(&hull(&k.v[split..]))
         });
+
+        // Triangle DOPs: the union of the corners', inflated.
+        tri_dops.resize(triangles.len(), Dop26::empty());
+        runs(triangles.len(), bounds);
+        let vd: &[[Dop26; 2]] = vertex_dops;
+        exec.for_each_chunk(tri_dops, bounds, &|k, chunk: &mut [Dop26]| {
+            for (t, d) in triangles[k * RUN..].iter().zip(chunk.iter_mut()) {
+                *d = vd[t[0] as usize][0];
+                d.merge(&vd[t[1] as usize][0]);
+                d.merge(&vd[t[2] as usize][0]);
+                d.inflate(inflate);
+            }
+        });
+
+        let bvh = match bvh {
+            Some(b) if b.len() == tri_dops.len() => {
+                b.refit(tri_dops);
+                b
+            }
+            slot => slot.insert(Bvh::build(tri_dops)),
+        };
+
+        // Traversal tasks, each with its own output buffer.
+        bvh.self_overlap_tasks_into(MIN_TASKS, tasks);
+        let n = tasks.len();
+        if outs.len() < n {
+            outs.resize_with(n, TaskOut::default);
+        }
+        bounds.clear();
+        bounds.extend(0..=n);
+        let (bvh, tasks, td): (&Bvh, &[(u32, u32)], &[Dop26]) = (bvh, tasks, tri_dops);
+        let filter = Filter {
+            triangles,
+            inv_mass,
+            vertex_dops: vd,
+            tri_dops: td,
+            inflate,
+            exact_unions: !vd.iter().any(|d| d[0].is_empty()),
+        };
+        exec.for_each_chunk(&mut outs[..n], bounds, &|k, chunk: &mut [TaskOut]| {
+            let out = &mut chunk[0];
+            out.keys.clear();
+            out.pairs = 0;
+            bvh.overlaps_from(tasks[k], |a, b| {
+                out.pairs += 1;
+                filter.stencils_of_pair(a as usize, b as usize, &mut out.keys);
+            });
+            out.keys.sort_unstable();
+            out.keys.dedup();
+        });
+
+        *last_pairs = outs[..n].iter().map(|o| o.pairs).sum();
+        let mut keys = Vec::with_capacity(outs[..n].iter().map(|o| o.keys.len()).sum());
+        for o in &outs[..n] {
+            keys.extend_from_slice(&o.keys);
+        }
+        // Concatenated sorted runs: the stable sort merges them.
+        keys.sort();
+        keys.dedup();
         keys
     }
+}
+
+/// Chunk bounds of `n` elements in runs of [`RUN`].
+fn runs(n: usize, bounds: &mut Vec<usize>) {
+    bounds.clear();
+    bounds.extend((0..n).step_by(RUN));
+    bounds.push(n);
+}
+
+/// What generating and filtering a triangle pair's stencils reads.
+struct Filter<'a> {
+    triangles: &'a [[u32; 3]],
+    inv_mass: &'a [f64],
+    /// per vertex: raw and inflated DOP.
+    vertex_dops: &'a [[Dop26; 2]],
+    /// per triangle: its leaf (inflated).
+    tri_dops: &'a [Dop26],
+    inflate: f64,
+    /// every vertex DOP is non-empty: unions of inflated DOPs are the
+    /// inflated unions (module documentation).
+    exact_unions: bool,
+}
+
+impl Filter<'_> {
+    /// Appends the stencils of [`stencils_of_pair`] between triangles `a` and
+    /// `b` that pass [`primitives_overlap`] (same answers, cheaper DOPs).
+    #[inline]
+    fn stencils_of_pair(&self, a: usize, b: usize, out: &mut Vec<StencilKey>) {
+        let (ta, tb) = (self.triangles[a], self.triangles[b]);
+        let vd = self.vertex_dops;
+        let keep = |k: &StencilKey| {
+            !k.shares_vertex() && k.v.iter().any(|&i| self.inv_mass[i as usize] > 0.0)
+        };
+        if !self.exact_unions {
+            let start = out.len();
+            stencils_of_pair(ta, tb, self.inv_mass, out);
+            let mut k = start;
+            for i in start..out.len() {
+                if primitives_overlap_by(|v| &vd[v as usize][0], &out[i], self.inflate) {
+                    out[k] = out[i];
+                    k += 1;
+                }
+            }
+            out.truncate(k);
+            return;
+        }
+        // The cheap necessary conditions (no shared vertex, DOPs overlap) first;
+        // all are pure and conjunctive, so the order changes nothing.
+        for (tv, face, fd) in [(ta, tb, &self.tri_dops[b]), (tb, ta, &self.tri_dops[a])] {
+            for &p in &tv {
+                if !face.contains(&p) && overlap(&vd[p as usize][1], fd) {
+                    let k = StencilKey::vertex_face(p, face);
+                    if keep(&k) {
+                        out.push(k);
+                    }
+                }
+            }
+        }
+        for i in 0..3 {
+            let ea = [ta[i], ta[(i + 1) % 3]];
+            for j in 0..3 {
+                let eb = [tb[j], tb[(j + 1) % 3]];
+                if !eb.contains(&ea[0])
+                    && !eb.contains(&ea[1])
+                    && unions_overlap(
+                        [&vd[ea[0] as usize][1], &vd[ea[1] as usize][1]],
+                        [&vd[eb[0] as usize][1], &vd[eb[1] as usize][1]],
+                    )
+                {
+                    let k = StencilKey::edge_edge(ea, eb);
+                    if keep(&k) {
+                        out.push(k);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// `(a[0] ∪ a[1]).overlaps(b[0] ∪ b[1])` without building the unions; stops
+/// at the first separating direction (most candidates are separated).
+#[inline]
+fn unions_overlap(a: [&Dop26; 2], b: [&Dop26; 2]) -> bool {
+    (0..13).all(|k| {
+        let (alo, ahi) = (a[0].lo[k].min(a[1].lo[k]), a[0].hi[k].max(a[1].hi[k]));
+        let (blo, bhi) = (b[0].lo[k].min(b[1].lo[k]), b[0].hi[k].max(b[1].hi[k]));
+        alo <= bhi && blo <= ahi
+    })
+}
+
+/// `a.overlaps(b)`, stopping at the first separating direction.
+#[inline]
+fn overlap(a: &Dop26, b: &Dop26) -> bool {
+    (0..13).all(|k| a.lo[k] <= b.hi[k] && b.lo[k] <= a.hi[k])
+}
+
+/// The stencil-level filter: the DOPs of the stencil's two primitives (the
+/// union of their vertices' DOPs, inflated by `inflate`) overlap.
+pub fn primitives_overlap(vertex_dops: &[Dop26], key: &StencilKey, inflate: f64) -> bool {
+    primitives_overlap_by(|i| &vertex_dops[i as usize], key, inflate)
+}
+
+/// [`primitives_overlap`] with vertex `i`'s DOP given by `dop(i)`.
+fn primitives_overlap_by<'a>(
+    dop: impl Fn(u32) -> &'a Dop26,
+    key: &StencilKey,
+    inflate: f64,
+) -> bool {
+    let hull = |ids: &[u32]| {
+        let mut d = *dop(ids[0]);
+        for &i in &ids[1..] {
+            d.merge(dop(i));
+        }
+        d.inflate(inflate);
+        d
+    };
+    let split = match key.kind {
+        StencilKind::VertexFace => 1,
+        StencilKind::EdgeEdge => 2,
+    };
+    hull(&key.v[..split]).overlaps(&hull(&key.v[split..]))
 }
 
 /// Appends the VF and EE stencils between triangles `ta` and `tb`.
@@ -115,5 +328,205 @@ pub fn stencils_of_pair(ta: [u32; 3], tb: [u32; 3], inv_mass: &[f64], out: &mut 
         for j in 0..3 {
             push(StencilKey::edge_edge(ea, [tb[j], tb[(j + 1) % 3]]));
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+    use weft_geom::shapes::grid;
+    use weft_testkit::Rng;
+
+    /// An executor that runs chunks and map items last first (results still in
+    /// index order): the broad phase must not depend on the order of tasks.
+    struct Backwards;
+
+    impl Executor for Backwards {
+        fn for_each_chunk<T: Send>(
+            &self,
+            data: &mut [T],
+            bounds: &[usize],
+            task: &(dyn Fn(usize, &mut [T]) + Sync),
+        ) {
+            let mut chunks = Vec::new();
+            let mut rest = data;
+            for k in 0..bounds.len().saturating_sub(1) {
+                let (chunk, tail) = rest.split_at_mut(bounds[k + 1] - bounds[k]);
+                chunks.push((k, chunk));
+                rest = tail;
+            }
+            for (k, chunk) in chunks.into_iter().rev() {
+                task(k, chunk);
+            }
+        }
+
+        fn map<R: Send>(&self, n: usize, f: &(dyn Fn(usize) -> R + Sync)) -> Vec<R> {
+            let mut out: Vec<R> = (0..n).rev().map(f).collect();
+            out.reverse();
+            out
+        }
+
+        fn name(&self) -> String {
+            "backwards".into()
+        }
+    }
+
+    /// A crumpled `res × res` grid (folded over itself so distant triangles come
+    /// close) with `steps` breakpoints per vertex; some vertices kinematic.
+    fn crumpled(seed: u64, res: usize, steps: usize) -> (Vec<[u32; 3]>, Vec<f64>, Trajectories) {
+        crumpled_with(seed, res, steps, &[])
+    }
+
+    /// [`crumpled`] with the vertices in `poison` at non-finite positions and
+    /// without breakpoints (their DOPs are empty).
+    fn crumpled_with(
+        seed: u64,
+        res: usize,
+        steps: usize,
+        poison: &[usize],
+    ) -> (Vec<[u32; 3]>, Vec<f64>, Trajectories) {
+        let mesh = grid(DVec3::ZERO, DVec3::X, DVec3::Y, [1.0, 1.0], [res, res]);
+        let mut rng = Rng(seed);
+        let x: Vec<DVec3> = mesh
+            .positions
+            .iter()
+            .map(|p| {
+                // fold along x = 0 onto itself with a small gap, plus noise
+                let fold = if p.x > 0.0 {
+                    DVec3::new(-p.x, p.y, 0.02 + 0.3 * p.x * p.x)
+                } else {
+                    *p
+                };
+                fold + rng.vec(0.01)
+            })
+            .collect();
+        let mut x = x;
+        for (n, &i) in poison.iter().enumerate() {
+            x[i] = DVec3::splat([f64::NAN, f64::INFINITY][n % 2]);
+        }
+        let inv_mass: Vec<f64> = (0..x.len())
+            .map(|i| if i % 13 < 3 { 0.0 } else { 1.0 })
+            .collect();
+        let mut traj = Trajectories::new(x.len(), usize::MAX);
+        traj.begin(0, &x);
+        for s in 1..=steps {
+            for (i, p) in x.iter().enumerate() {
+                if rng.below(3) > 0 && !poison.contains(&i) {
+                    let q = *p + rng.vec(0.004) * s as f64;
+                    traj.record(i, 100 * s as u64, q).unwrap();
+                }
+            }
+        }
+        (mesh.triangles, inv_mass, traj)
+    }
+
+    /// The oracle: every pair of triangles whose inflated DOPs (over all their
+    /// corners' breakpoints) overlap, tested pairwise; their stencils; the
+    /// primitive-level filter.
+    fn brute_force(
+        triangles: &[[u32; 3]],
+        inv_mass: &[f64],
+        traj: &Trajectories,
+        inflate: f64,
+    ) -> (Vec<StencilKey>, usize) {
+        let vd: Vec<Dop26> = (0..traj.len())
+            .map(|i| Dop26::from_points(traj.of(i).points.iter().copied()))
+            .collect();
+        let td: Vec<Dop26> = triangles
+            .iter()
+            .map(|t| {
+                let mut d = Dop26::from_points(
+                    t.iter()
+                        .flat_map(|&v| traj.of(v as usize).points.iter().copied()),
+                );
+                d.inflate(inflate);
+                d
+            })
+            .collect();
+        let mut keys = Vec::new();
+        let mut pairs = 0;
+        for a in 0..triangles.len() {
+            for b in a + 1..triangles.len() {
+                if td[a].overlaps(&td[b]) {
+                    pairs += 1;
+                    stencils_of_pair(triangles[a], triangles[b], inv_mass, &mut keys);
+                }
+            }
+        }
+        keys.retain(|k| primitives_overlap(&vd, k, inflate));
+        keys.sort_unstable();
+        keys.dedup();
+        (keys, pairs)
+    }
+
+    #[test]
+    fn matches_brute_force_on_any_executor() {
+        let mut total = 0;
+        for (seed, res, steps, inflate) in [(1, 12, 2, 0.01), (2, 24, 3, 0.02), (3, 40, 1, 0.005)] {
+            let (tris, inv_mass, traj) = crumpled(seed, res, steps);
+            let (expected, pairs) = brute_force(&tris, &inv_mass, &traj, inflate);
+            total += expected.len();
+            // a fresh workspace, then one reused with another mesh's buffers in it
+            let mut reused = BroadPhase::default();
+            let (t2, m2, tr2) = crumpled(seed + 100, 9, 2);
+            reused.candidates_on(&Backwards, &t2, &m2, &tr2, inflate);
+            for (name, got, bp) in [
+                {
+                    let mut bp = BroadPhase::default();
+                    let got = bp.candidates(&tris, &inv_mass, &traj, inflate);
+                    ("serial", got, bp)
+                },
+                {
+                    let mut bp = BroadPhase::default();
+                    let got = bp.candidates_on(&Backwards, &tris, &inv_mass, &traj, inflate);
+                    ("backwards", got, bp)
+                },
+                {
+                    let got = reused.candidates_on(&Backwards, &tris, &inv_mass, &traj, inflate);
+                    ("reused", got, reused.clone())
+                },
+            ] {
+                assert_eq!(got, expected, "{name}: res {res}");
+                assert_eq!(bp.last_pairs, pairs, "{name}: res {res}");
+            }
+            // refit path: same mesh, new trajectories
+            let (_, _, moved) = crumpled(seed + 7, res, steps);
+            let mut bp = BroadPhase::default();
+            bp.candidates(&tris, &inv_mass, &traj, inflate);
+            assert_eq!(
+                bp.candidates_on(&Backwards, &tris, &inv_mass, &moved, inflate),
+                brute_force(&tris, &inv_mass, &moved, inflate).0
+            );
+        }
+        assert!(total > 1000, "scenes too sparse ({total} candidates)");
+    }
+
+    #[test]
+    fn vertices_with_empty_dops_take_the_general_filter() {
+        let (tris, inv_mass, traj) = crumpled_with(4, 20, 2, &[5, 77, 150, 151, 299]);
+        for bad in [f64::NAN, f64::INFINITY] {
+            assert!(Dop26::from_point(DVec3::splat(bad)).is_empty());
+        }
+        for inflate in [0.0, 0.01, 0.03] {
+            let (expected, pairs) = brute_force(&tris, &inv_mass, &traj, inflate);
+            assert!(!expected.is_empty());
+            let mut bp = BroadPhase::default();
+            assert_eq!(
+                bp.candidates_on(&Backwards, &tris, &inv_mass, &traj, inflate),
+                expected
+            );
+            assert_eq!(bp.last_pairs, pairs);
+        }
+    }
+
+    #[test]
+    fn empty_inputs() {
+        let traj = Trajectories::new(0, usize::MAX);
+        let mut bp = BroadPhase::default();
+        assert!(bp
+            .candidates_on(&Backwards, &[], &[], &traj, 0.1)
+            .is_empty());
+        assert_eq!(bp.last_pairs, 0);
     }
 }

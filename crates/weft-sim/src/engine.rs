@@ -29,6 +29,7 @@ use weft_core::{StencilKey, StencilKind};
 use weft_geom::ccd::{proximity, CcdStats};
 use weft_geom::distance::{stencil_closest, Closest};
 
+use crate::balance::{CollisionTasks, CostModel};
 use crate::broad::BroadPhase;
 use crate::clock::{next_multiple_after, Tick};
 use crate::diagnostics::{StageSeconds, WindowStats};
@@ -86,6 +87,9 @@ fn distance_lower_bound(kind: StencilKind, d0: f64, x0: &[DVec3; 4], x: &[DVec3;
 /// out tasks would cost more than it saves (the results are the same bits).
 const PARALLEL_MIN_STENCILS: usize = 256;
 
+/// Vertices per task of the per-vertex stages of an internal batch.
+const VERTEX_RUN: usize = 2048;
+
 /// Stencils per task of the penalty stage.
 const PENALTY_RUN: usize = 128;
 
@@ -140,6 +144,10 @@ struct Workspace {
     run_bounds: Vec<usize>,
     /// (layer, active index) of the batch's stencils inside their layer.
     kick_items: Vec<(u32, u32)>,
+    /// New velocities of an internal batch.
+    v_new: Vec<DVec3>,
+    /// Bounds of the fixed runs of vertices of the per-vertex stages.
+    vertex_runs: Vec<usize>,
     broad: BroadPhase,
 }
 
@@ -164,6 +172,8 @@ pub struct Engine<E: Executor = Serial> {
     /// Set from outside (a signal handler, a deadline) to stop at the next
     /// event batch, back at the window start.
     interrupt: Option<Arc<AtomicBool>>,
+    /// Narrow-phase cost per partition pair, measured in the last pass.
+    narrow_costs: CostModel,
 }
 
 impl<E: Executor> Engine<E> {
@@ -180,6 +190,10 @@ impl<E: Executor> Engine<E> {
                 friction: vec![DVec3::ZERO; n],
                 friction_max: vec![0.0; n],
                 is_touched: vec![false; n],
+                v_new: vec![DVec3::ZERO; n],
+                vertex_runs: (0..=n.div_ceil(VERTEX_RUN))
+                    .map(|k| (k * VERTEX_RUN).min(n))
+                    .collect(),
                 bounds: world.internal.slot_bounds(),
                 ..Default::default()
             },
@@ -189,6 +203,7 @@ impl<E: Executor> Engine<E> {
             totals: RunTotals::default(),
             ccd: CcdStats::default(),
             interrupt: None,
+            narrow_costs: CostModel::default(),
         };
         engine.check_initial_state()?;
         Ok(engine)
@@ -278,7 +293,8 @@ impl<E: Executor> Engine<E> {
     fn check_initial_state(&mut self) -> Result<(), SimError> {
         let w = &self.world;
         self.traj.begin(w.tick, &w.x);
-        let keys = self.ws.broad.candidates(
+        let keys = self.ws.broad.candidates_on(
+            &self.exec,
             &w.triangles,
             &w.inv_mass,
             &self.traj,
@@ -375,7 +391,8 @@ impl<E: Executor> Engine<E> {
             let broad_span = trace::span("broad");
             let candidates = {
                 let w = &self.world;
-                self.ws.broad.candidates(
+                self.ws.broad.candidates_on(
+                    &self.exec,
                     &w.triangles,
                     &w.inv_mass,
                     &self.traj,
@@ -571,19 +588,29 @@ impl<E: Executor> Engine<E> {
         if internal {
             let _span = trace::span("internal tick");
             counts.internal_events += 1;
-            for i in 0..n {
-                ws.xt[i] = Self::pos_at(w, i, t);
-            }
+            // Per-vertex stages run on the executor in fixed runs of
+            // vertices; each writes only its own vertices' entries.
+            self.exec
+                .for_each_chunk(&mut ws.xt, &ws.vertex_runs, &|k, run| {
+                    for (j, p) in run.iter_mut().enumerate() {
+                        *p = Self::pos_at(w, k * VERTEX_RUN + j, t);
+                    }
+                });
             w.internal
                 .evaluate(&self.exec, &ws.bounds, &ws.xt, &w.v, &mut ws.out);
             let h = w.lattice.h_el();
-            for i in 0..n {
-                if w.inv_mass[i] > 0.0 {
-                    let g = w.internal.fold(i, &ws.out) - w.gravity * w.mass[i];
-                    ws.acc[i] = g * -h;
-                }
-                ws.is_touched[i] = true;
-            }
+            let out = &ws.out;
+            self.exec
+                .for_each_chunk(&mut ws.acc, &ws.vertex_runs, &|k, run| {
+                    for (j, a) in run.iter_mut().enumerate() {
+                        let i = k * VERTEX_RUN + j;
+                        if w.inv_mass[i] > 0.0 {
+                            let g = w.internal.fold(i, out) - w.gravity * w.mass[i];
+                            *a = g * -h;
+                        }
+                    }
+                });
+            ws.is_touched.fill(true);
         }
         // Penalty layers, in (layer, key) order.
         let layer_clocks = if internal { &firing[1..] } else { firing };
@@ -715,30 +742,32 @@ impl<E: Executor> Engine<E> {
                 }
             }
         }
-        // Apply: new velocities; drift and record only where v changed.
+        // Apply: new velocities (on the executor for an internal batch, which
+        // touches every vertex); then, in vertex order, drift and record only
+        // where v changed.
         let h = w.lattice.h_el();
         let tsec = w.lattice.seconds(t);
+        if internal {
+            let (xt, acc, friction, fmax) = (&ws.xt, &ws.acc, &ws.friction, &ws.friction_max);
+            self.exec
+                .for_each_chunk(&mut ws.v_new, &ws.vertex_runs, &|k, run| {
+                    for (j, v) in run.iter_mut().enumerate() {
+                        let i = k * VERTEX_RUN + j;
+                        let impulse = (acc[i], friction[i], fmax[i]);
+                        *v = new_velocity(w, i, true, xt[i], impulse, tsec, h);
+                    }
+                });
+        }
         let world = &mut self.world;
         let window_start = self.traj.start();
         let mut apply = |i: usize, xt: Option<DVec3>| -> Result<(), SimError> {
             let v_old = world.v[i];
-            let v_new = if let Some((s, k)) = world.script_of[i] {
-                if internal {
-                    let x = xt.unwrap_or_else(|| Self::pos_at(world, i, t));
-                    world.scripts[s as usize].chord_velocity(k as usize, x, tsec, h)
-                } else {
-                    v_old
-                }
+            let v_new = if internal {
+                ws.v_new[i]
             } else {
-                // Per-vertex friction clamp: the batch's summed friction is at
-                // most the largest single stencil's, which on its own only
-                // stops (never reverses) that stencil's relative sliding.
-                let mut f = ws.friction[i];
-                let (len, cap) = (f.length(), ws.friction_max[i]);
-                if len > cap {
-                    f *= cap / len;
-                }
-                v_old + (ws.acc[i] + f) * world.inv_mass[i]
+                let x = Self::pos_at(world, i, t);
+                let impulse = (ws.acc[i], ws.friction[i], ws.friction_max[i]);
+                new_velocity(world, i, false, x, impulse, tsec, h)
             };
             ws.acc[i] = DVec3::ZERO;
             ws.friction[i] = DVec3::ZERO;
@@ -777,34 +806,51 @@ impl<E: Executor> Engine<E> {
         Ok(())
     }
 
-    /// Stencils among `candidates` that may come within `eta_(depth+1)`.
-    /// Tests every candidate against its next layer, on the executor: tasks
-    /// take fixed runs of candidates in key order and the answers are merged in
-    /// that order, so the result does not depend on the executor.
+    /// Stencils among `candidates` (sorted) that may come within
+    /// `eta_(depth+1)`, in key order.
+    ///
+    /// Candidates are grouped by partition pair and split into tasks whose
+    /// cost is predicted from the previous pass ([`crate::balance`]); the
+    /// executor gets them largest first. Each candidate is tested once and
+    /// the answers are sorted, so the result does not depend on the tasks.
     fn narrow_phase(&mut self, candidates: &[StencilKey]) -> Vec<StencilKey> {
-        const TASK: usize = 64;
+        const TASK: f64 = 64.0;
         let w = &self.world;
         let traj = &self.traj;
-        let tasks = candidates.len().div_ceil(TASK);
-        let answers = self.exec.map(tasks, &|t| {
-            let _span = trace::span_with("narrow task", "first", (t * TASK) as u64);
+        let costs = &mut self.narrow_costs;
+        let tasks = CollisionTasks::build(candidates, &w.partitioning, costs, TASK * costs.mean());
+        let order = tasks.by_load();
+        let answers = self.exec.map(order.len(), &|n| {
+            let task = &tasks.tasks[order[n]];
+            let _span = trace::span_with("narrow task", "candidates", task.range.len() as u64);
+            let clock = Instant::now();
             let mut stats = CcdStats::default();
             let mut reported = Vec::new();
-            for key in &candidates[t * TASK..((t + 1) * TASK).min(candidates.len())] {
+            for &c in &tasks.order[task.range.clone()] {
+                let key = &candidates[c as usize];
                 let eta = w.schedule.eta(w.layers.depth(key) + 1);
                 let tr = key.v.map(|i| traj.of(i as usize));
                 if proximity(key.kind, &tr, eta, &mut stats) {
                     reported.push(*key);
                 }
             }
-            (reported, stats)
+            let seconds = clock.elapsed().as_secs_f64();
+            (
+                reported,
+                stats,
+                (task.pair, seconds, task.range.len() as u64),
+            )
         });
         self.totals.narrow_queries += candidates.len() as u64;
         let mut reported = Vec::new();
-        for (r, stats) in answers {
+        let mut measured = Vec::with_capacity(answers.len());
+        for (r, stats, m) in answers {
             reported.extend(r);
             self.ccd.merge(&stats);
+            measured.push(m);
         }
+        costs.record(measured);
+        reported.sort_unstable();
         reported
     }
 
@@ -961,6 +1007,38 @@ impl<E: Executor> Engine<E> {
     /// Hash of the state: see [`crate::hash::state_hash`].
     pub fn state_hash(&self) -> String {
         crate::hash::state_hash(&self.world)
+    }
+}
+
+/// Vertex `i`'s velocity after a batch at `tsec` in which it received
+/// `(normal + internal impulse, friction impulse, largest single friction
+/// impulse)`; `x` is its position at the batch. A scripted vertex follows the
+/// chord of its script at internal ticks and keeps its velocity otherwise.
+fn new_velocity(
+    w: &World,
+    i: usize,
+    internal: bool,
+    x: DVec3,
+    (acc, friction, friction_max): (DVec3, DVec3, f64),
+    tsec: f64,
+    h: f64,
+) -> DVec3 {
+    if let Some((s, k)) = w.script_of[i] {
+        if internal {
+            w.scripts[s as usize].chord_velocity(k as usize, x, tsec, h)
+        } else {
+            w.v[i]
+        }
+    } else {
+        // Per-vertex friction clamp: the batch's summed friction is at most
+        // the largest single stencil's, which on its own only stops (never
+        // reverses) that stencil's relative sliding.
+        let mut f = friction;
+        let len = f.length();
+        if len > friction_max {
+            f *= friction_max / len;
+        }
+        w.v[i] + (acc + f) * w.inv_mass[i]
     }
 }
 

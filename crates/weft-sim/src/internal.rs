@@ -209,39 +209,69 @@ impl InternalForces {
     ) {
         exec.for_each_chunk(out, bounds, &|p, chunk: &mut [DVec3]| {
             let _span = crate::trace::span_with("partition", "partition", p as u64);
-            let part = &self.partitions[p];
-            let mut k = 0;
-            for s in part.stretch.clone() {
-                let e = &self.stretch[s];
-                let m = &self.materials[self.stretch_material[s] as usize];
-                let xs = e.verts.map(|i| x[i as usize]);
-                let mut g = e.gradient(&xs, m);
-                if self.damped && m.stretch_damping > 0.0 {
-                    let vs = e.verts.map(|i| v[i as usize]);
-                    let f = e.damping_force(&xs, &vs, m);
-                    for j in 0..3 {
-                        g[j] -= f[j];
-                    }
-                }
-                chunk[k..k + 3].copy_from_slice(&g);
-                k += 3;
-            }
-            for h in part.hinges.clone() {
-                let e = &self.hinges[h];
-                let m = &self.materials[self.hinge_material[h] as usize];
-                let xs = e.verts.map(|i| x[i as usize]);
-                let mut g = e.gradient(&xs, m.bending_stiffness);
-                if self.damped && m.bend_damping > 0.0 {
-                    let vs = e.verts.map(|i| v[i as usize]);
-                    let f = e.damping_force(&xs, &vs, m);
-                    for j in 0..4 {
-                        g[j] -= f[j];
-                    }
-                }
-                chunk[k..k + 4].copy_from_slice(&g);
-                k += 4;
-            }
+            self.evaluate_partition(p, x, v, chunk);
         });
+    }
+
+    /// Evaluates partition `p`'s elements into `chunk` (its output slots,
+    /// `partitions[p].slots`), reading only the positions and velocities of
+    /// their vertices.
+    pub fn evaluate_partition(&self, p: usize, x: &[DVec3], v: &[DVec3], chunk: &mut [DVec3]) {
+        let part = &self.partitions[p];
+        let mut k = 0;
+        for s in part.stretch.clone() {
+            let e = &self.stretch[s];
+            let m = &self.materials[self.stretch_material[s] as usize];
+            let xs = e.verts.map(|i| x[i as usize]);
+            let mut g = e.gradient(&xs, m);
+            if self.damped && m.stretch_damping > 0.0 {
+                let vs = e.verts.map(|i| v[i as usize]);
+                let f = e.damping_force(&xs, &vs, m);
+                for j in 0..3 {
+                    g[j] -= f[j];
+                }
+            }
+            chunk[k..k + 3].copy_from_slice(&g);
+            k += 3;
+        }
+        for h in part.hinges.clone() {
+            let e = &self.hinges[h];
+            let m = &self.materials[self.hinge_material[h] as usize];
+            let xs = e.verts.map(|i| x[i as usize]);
+            let mut g = e.gradient(&xs, m.bending_stiffness);
+            if self.damped && m.bend_damping > 0.0 {
+                let vs = e.verts.map(|i| v[i as usize]);
+                let f = e.damping_force(&xs, &vs, m);
+                for j in 0..4 {
+                    g[j] -= f[j];
+                }
+            }
+            chunk[k..k + 4].copy_from_slice(&g);
+            k += 4;
+        }
+    }
+
+    /// The output slots vertex `i` sums, in global key order.
+    pub fn incidence(&self, i: usize) -> &[u32] {
+        let (a, b) = (
+            self.incidence_offsets[i] as usize,
+            self.incidence_offsets[i + 1] as usize,
+        );
+        &self.incidence[a..b]
+    }
+
+    /// The vertices of each element of partition `p`, slot by slot (3 per
+    /// stretch element, then 4 per hinge), in the order of its output slots.
+    pub fn slot_vertices(&self, p: usize) -> Vec<u32> {
+        let part = &self.partitions[p];
+        let mut out = Vec::with_capacity(part.slots.len());
+        for s in part.stretch.clone() {
+            out.extend_from_slice(&self.stretch[s].verts);
+        }
+        for h in part.hinges.clone() {
+            out.extend_from_slice(&self.hinges[h].verts);
+        }
+        out
     }
 
     /// The ordered fold of vertex `i`'s contributions (global key order).
@@ -285,13 +315,13 @@ impl InternalForces {
             stretch: self
                 .stretch_by_key
                 .iter()
-                .map(|&i| self.stretch[i as usize].clone())
+                .map(|&i| self.stretch[i as usize])
                 .collect(),
             stretch_material: pick(&self.stretch_by_key, &self.stretch_material),
             hinges: self
                 .hinge_by_key
                 .iter()
-                .map(|&i| self.hinges[i as usize].clone())
+                .map(|&i| self.hinges[i as usize])
                 .collect(),
             hinge_material: pick(&self.hinge_by_key, &self.hinge_material),
             materials: self.materials.clone(),

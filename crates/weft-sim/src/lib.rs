@@ -14,6 +14,7 @@
 //! | [`layers`] | the penalty-layer schedule, active-layer set, penalty and friction kicks |
 //! | [`trace`] | timeline spans per stage and task, Chrome-trace JSON |
 //! | [`trajectory`] | per-window breakpoint storage under a memory budget |
+//! | [`balance`] | narrow-phase tasks by partition pair, profiled costs, the locality-aware assignment |
 //! | [`broad`] | 26-DOP BVH broad phase with stencil-level filtering |
 //! | [`engine`] | the window / detect / rollback / commit loop |
 //! | [`diagnostics`] | per-window statistics |
@@ -23,6 +24,7 @@
 //! | [`state`] | the resumable state a checkpoint holds |
 //! | [`failpoint`] | deterministic crash points for resume tests |
 
+pub mod balance;
 pub mod broad;
 pub mod clock;
 pub mod config;

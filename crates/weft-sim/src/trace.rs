@@ -96,8 +96,11 @@ fn track() -> u32 {
 /// An open span: recorded when dropped (if recording was on when it opened).
 #[must_use = "a span measures until it is dropped"]
 pub struct SpanGuard {
-    open: Option<(&'static str, Instant, Option<(&'static str, u64)>)>,
+    open: Option<(&'static str, Instant, Option<Arg>)>,
 }
+
+/// A span's optional numeric argument: (name, value).
+type Arg = (&'static str, u64);
 
 /// Opens a span named `name` on the calling thread's track.
 #[inline]

@@ -8,7 +8,10 @@
 //! * [`refit`](Bvh::refit) (`refit.rs`): new leaf bounds, same topology,
 //!   bottom-up;
 //! * [`self_overlaps`](Bvh::self_overlaps) and [`overlaps_with`](Bvh::overlaps_with)
-//!   (`traverse.rs`): simultaneous descent with an explicit stack;
+//!   (`traverse.rs`): simultaneous descent with an explicit stack; the self
+//!   descent also splits into independent tasks
+//!   ([`self_overlap_tasks`](Bvh::self_overlap_tasks), each run by
+//!   [`overlaps_from`](Bvh::overlaps_from)) for parallel callers;
 //! * [`validate`](Bvh::validate) (`validate.rs`): structural and bounding checks
 //!   for tests.
 //!

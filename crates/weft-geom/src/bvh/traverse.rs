@@ -10,6 +10,16 @@
 //! overlap (all their ancestors' bounds then overlap too). The stack is a local
 //! heap `Vec` (one allocation per query, not per pair), so deep trees (1e6
 //! leaves and more) cannot overflow the call stack.
+//!
+//! # Tasks
+//!
+//! [`self_overlap_tasks`](Bvh::self_overlap_tasks) expands the root pair
+//! `(0, 0)` breadth-first with the same rules until there are enough node pairs
+//! (or only leaf-level pairs are left), and [`overlaps_from`](Bvh::overlaps_from)
+//! runs the descent from one such pair. The subtrees of pair space below the
+//! tasks are disjoint and together cover exactly what the descent from the root
+//! covers, so the union of the tasks' reports is [`self_overlaps`](Bvh::self_overlaps)'s
+//! (each pair exactly once), and tasks can run in any order or in parallel.
 
 use super::{Bvh, Node};
 
@@ -17,38 +27,101 @@ impl Bvh {
     /// Calls `f(i, j)` with `i < j` exactly once for every pair of distinct
     /// leaves whose DOPs overlap (adjacent triangles included; a leaf is never
     /// paired with itself). The call order is deterministic but unspecified.
-    pub fn self_overlaps(&self, mut f: impl FnMut(u32, u32)) {
+    pub fn self_overlaps(&self, f: impl FnMut(u32, u32)) {
+        self.overlaps_from((0, 0), f);
+    }
+
+    /// Splits [`self_overlaps`](Bvh::self_overlaps) into independent tasks: the
+    /// node pairs reached by expanding the root pair `(0, 0)` breadth-first with
+    /// the descent's rules until there are at least `min_tasks` pairs or none
+    /// is left to expand (pairs whose next step only tests leaves stay as they
+    /// are). Running [`overlaps_from`](Bvh::overlaps_from) on every task reports
+    /// every overlapping pair of distinct leaves exactly once in total.
+    ///
+    /// Deterministic; empty for an empty tree, `[(0, 0)]` when `min_tasks <= 1`.
+    pub fn self_overlap_tasks(&self, min_tasks: usize) -> Vec<(u32, u32)> {
+        let mut tasks = Vec::new();
+        self.self_overlap_tasks_into(min_tasks, &mut tasks);
+        tasks
+    }
+
+    /// [`self_overlap_tasks`](Bvh::self_overlap_tasks) into `tasks` (cleared
+    /// first; its capacity is reused).
+    pub fn self_overlap_tasks_into(&self, min_tasks: usize, tasks: &mut Vec<(u32, u32)>) {
+        tasks.clear();
         if self.nodes.is_empty() {
             return;
         }
-        let mut stack: Vec<(u32, u32)> = vec![(0, 0)];
-        while let Some((a, b)) = stack.pop() {
-            let na = self.nodes[a as usize];
-            if a == b {
-                if na.is_leaf() {
-                    let r = na.range();
-                    for i in r.clone() {
-                        for j in i + 1..r.end {
-                            if self.leaf_bounds[i].overlaps(&self.leaf_bounds[j]) {
-                                f_sorted(&mut f, self.order[i], self.order[j]);
-                            }
-                        }
-                    }
-                } else {
-                    let (l, r) = (na.child, na.child + 1);
-                    stack.push((l, l));
-                    stack.push((r, r));
-                    if self.bounds[l as usize].overlaps(&self.bounds[r as usize]) {
-                        stack.push((l, r));
-                    }
-                }
+        // `tasks[..done]` are leaf-level pairs kept as they are; `tasks[head..]`
+        // is the FIFO queue of pairs still to expand (`tasks[done..head]` are
+        // expanded pairs, dropped at the end).
+        tasks.push((0, 0));
+        let (mut done, mut head) = (0, 0);
+        let mut children = Vec::with_capacity(3);
+        while head < tasks.len() && done + (tasks.len() - head) < min_tasks {
+            let pair = tasks[head];
+            head += 1;
+            if self.is_leaf_level(pair) {
+                tasks.swap(done, head - 1);
+                done += 1;
                 continue;
             }
-            let nb = self.nodes[b as usize];
-            self.descend_pair(self, a, na, b, nb, &mut stack, &mut |i, j| {
-                f_sorted(&mut f, i, j)
+            children.clear();
+            self.step(pair, &mut children, &mut |_, _| {
+                unreachable!("an internal pair tests no leaves")
             });
+            tasks.extend_from_slice(&children);
         }
+        tasks.drain(done..head);
+    }
+
+    /// Calls `f(i, j)` with `i < j` once for every pair of distinct overlapping
+    /// leaves found by the descent from the node pair `task` (one of
+    /// [`self_overlap_tasks`](Bvh::self_overlap_tasks); `(0, 0)` is the whole
+    /// tree). The call order is deterministic but unspecified.
+    pub fn overlaps_from(&self, task: (u32, u32), mut f: impl FnMut(u32, u32)) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let mut stack: Vec<(u32, u32)> = vec![task];
+        while let Some(pair) = stack.pop() {
+            self.step(pair, &mut stack, &mut f);
+        }
+    }
+
+    /// True when the next step of `pair` tests leaves and pushes nothing.
+    #[inline]
+    fn is_leaf_level(&self, (a, b): (u32, u32)) -> bool {
+        self.nodes[a as usize].is_leaf() && self.nodes[b as usize].is_leaf()
+    }
+
+    /// One step of the self-descent for the node pair `(a, b)` of overlapping
+    /// bounds: reports leaf pairs (`i < j`) through `f`, pushes child pairs.
+    #[inline]
+    fn step(&self, (a, b): (u32, u32), stack: &mut Vec<(u32, u32)>, f: &mut impl FnMut(u32, u32)) {
+        let na = self.nodes[a as usize];
+        if a == b {
+            if na.is_leaf() {
+                let r = na.range();
+                for i in r.clone() {
+                    for j in i + 1..r.end {
+                        if self.leaf_bounds[i].overlaps(&self.leaf_bounds[j]) {
+                            f_sorted(f, self.order[i], self.order[j]);
+                        }
+                    }
+                }
+            } else {
+                let (l, r) = (na.child, na.child + 1);
+                stack.push((l, l));
+                stack.push((r, r));
+                if self.bounds[l as usize].overlaps(&self.bounds[r as usize]) {
+                    stack.push((l, r));
+                }
+            }
+            return;
+        }
+        let nb = self.nodes[b as usize];
+        self.descend_pair(self, a, na, b, nb, stack, &mut |i, j| f_sorted(f, i, j));
     }
 
     /// Calls `f(i, j)` once for every leaf `i` of `self` and leaf `j` of `other`

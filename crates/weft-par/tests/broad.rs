@@ -1,0 +1,118 @@
+//! The broad phase on `Threads` (1 to 4 threads) gives the same candidate list
+//! and triangle-pair count as on `Serial`, on a folded, noisy grid large enough
+//! for hundreds of traversal tasks.
+
+use weft_core::DVec3;
+use weft_par::Threads;
+use weft_sim::broad::BroadPhase;
+use weft_sim::trajectory::Trajectories;
+use weft_sim::Serial;
+
+/// splitmix64 in `[-r, r)^3`.
+fn noise(state: &mut u64, r: f64) -> DVec3 {
+    let mut next = || {
+        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = *state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64 * 2.0 * r - r
+    };
+    DVec3::new(next(), next(), next())
+}
+
+/// An `n × n` vertex grid folded over itself along x = 0.5, with noise and
+/// `steps` breakpoints per vertex; every 13th vertex kinematic.
+fn folded(n: usize, steps: u64) -> (Vec<[u32; 3]>, Vec<f64>, Trajectories) {
+    let mut s = 7u64;
+    let h = 1.0 / (n - 1) as f64;
+    let mut x = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let u = i as f64 * h;
+            let p = if u > 0.5 {
+                DVec3::new(1.0 - u, j as f64 * h, 0.5 * h + 0.2 * (u - 0.5) * (u - 0.5))
+            } else {
+                DVec3::new(u, j as f64 * h, 0.0)
+            };
+            x.push(p + noise(&mut s, 0.2 * h));
+        }
+    }
+    let id = |i: usize, j: usize| (j * n + i) as u32;
+    let mut tris = Vec::new();
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            tris.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+            tris.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+        }
+    }
+    let inv_mass = (0..x.len())
+        .map(|i| if i % 13 == 0 { 0.0 } else { 1.0 })
+        .collect();
+    let mut traj = Trajectories::new(x.len(), usize::MAX);
+    traj.begin(0, &x);
+    for k in 1..=steps {
+        for (i, p) in x.iter().enumerate() {
+            traj.record(i, 64 * k, *p + noise(&mut s, 0.1 * h) * k as f64)
+                .unwrap();
+        }
+    }
+    (tris, inv_mass, traj)
+}
+
+#[test]
+fn threads_match_serial() {
+    let (tris, inv_mass, traj) = folded(120, 2);
+    let h = 1.0 / 119.0;
+    let mut serial = BroadPhase::default();
+    let expected = serial.candidates_on(&Serial, &tris, &inv_mass, &traj, 0.3 * h);
+    assert!(expected.len() > 10_000, "{} candidates", expected.len());
+    assert!(
+        expected.windows(2).all(|w| w[0] < w[1]),
+        "sorted and unique"
+    );
+    for threads in 1..=4 {
+        let exec = Threads::new(threads).unwrap();
+        let mut bp = BroadPhase::default();
+        for round in 0..2 {
+            // the second round refits the tree and reuses every buffer
+            let got = bp.candidates_on(&exec, &tris, &inv_mass, &traj, 0.3 * h);
+            assert_eq!(got, expected, "{threads} threads, round {round}");
+            assert_eq!(bp.last_pairs, serial.last_pairs);
+        }
+    }
+}
+
+/// Wall time of the broad phase on a 50k-triangle folded grid, `Serial` against
+/// `Threads(1)` and `Threads(2)`:
+/// `cargo test --release -p weft-par --test broad -- --ignored --nocapture`.
+#[test]
+#[ignore = "timing"]
+fn timing_serial_vs_threads() {
+    let (tris, inv_mass, traj) = folded(160, 3);
+    let inflate = 0.25 / 159.0;
+    let time = |name: &str, run: &mut dyn FnMut() -> Vec<weft_core::StencilKey>| {
+        let n = run().len();
+        let mut best = f64::INFINITY;
+        for _ in 0..9 {
+            let t = std::time::Instant::now();
+            assert_eq!(run().len(), n);
+            best = best.min(t.elapsed().as_secs_f64());
+        }
+        println!(
+            "{name:>10}: {:7.2} ms ({} triangles, {n} candidates)",
+            best * 1e3,
+            tris.len()
+        );
+    };
+    let mut bp = BroadPhase::default();
+    time("serial", &mut || {
+        bp.candidates_on(&Serial, &tris, &inv_mass, &traj, inflate)
+    });
+    for threads in [1, 2] {
+        let exec = Threads::new(threads).unwrap();
+        let mut bp = BroadPhase::default();
+        time(&format!("threads({threads})"), &mut || {
+            bp.candidates_on(&exec, &tris, &inv_mass, &traj, inflate)
+        });
+    }
+}
