@@ -10,9 +10,11 @@
 //! | module | what |
 //! |---|---|
 //! | [`metis`] | [`Metis`]: METIS partitions of the cloth's triangle dual graph |
+//! | [`ranks`] | the world over ranks with separate memory: placement, halo plans, internal forces by message passing |
 //! | [`threads`] | [`Threads`]: a rayon thread pool of its own |
 
 pub mod metis;
+pub mod ranks;
 pub mod threads;
 
 pub use metis::{build_world, Metis};
