@@ -23,6 +23,8 @@ pub struct Cli {
 pub enum Command {
     /// Simulate a scene and write frames, stats and a summary.
     Run(commands::run::RunArgs),
+    /// Measure the engine's throughput and parallel efficiency on a scene.
+    Bench(commands::bench::BenchArgs),
     /// Run the exact continuous proximity test on CCD benchmark folders.
     CcdBench(commands::ccd_bench::CcdBenchArgs),
     /// Report intersecting triangles in frame files.
@@ -54,6 +56,7 @@ where
     };
     let result = match cli.command {
         Command::Run(a) => commands::run::run(a),
+        Command::Bench(a) => commands::bench::run(a),
         Command::CcdBench(a) => commands::ccd_bench::run(a),
         Command::Check(a) => commands::check::run(a),
         Command::Info(a) => commands::info::run(a),

@@ -6,7 +6,16 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-const COMMANDS: &[&str] = &["", "run", "render", "plot", "check", "info", "ccd-bench"];
+const COMMANDS: &[&str] = &[
+    "",
+    "run",
+    "render",
+    "plot",
+    "check",
+    "info",
+    "bench",
+    "ccd-bench",
+];
 
 fn doc_path() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/cli.md")

@@ -4,9 +4,11 @@ use rayon::prelude::*;
 use weft_sim::Executor;
 
 /// Runs the engine's tasks on its own pool of `n` threads (work stealing:
-/// chunks and map items are taken by whichever thread is idle).
+/// chunks and map items are taken by whichever thread is idle). Clones share
+/// the pool.
+#[derive(Clone)]
 pub struct Threads {
-    pool: rayon::ThreadPool,
+    pool: std::sync::Arc<rayon::ThreadPool>,
 }
 
 impl Threads {
@@ -16,7 +18,17 @@ impl Threads {
             .num_threads(n)
             .thread_name(|i| format!("weft-{i}"))
             .build()?;
-        Ok(Self { pool })
+        Ok(Self {
+            pool: std::sync::Arc::new(pool),
+        })
+    }
+
+    /// Runs `f` on one of the pool's threads. Run the whole simulation loop
+    /// this way: its serial parts then run on a pool thread and the pool's
+    /// other threads are the only others, instead of an extra thread that
+    /// competes with workers spinning for work between parallel stages.
+    pub fn install<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+        self.pool.install(f)
     }
 
     /// The number of threads in the pool.

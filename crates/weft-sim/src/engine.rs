@@ -33,6 +33,7 @@ use crate::balance::{CollisionTasks, CostModel};
 use crate::broad::BroadPhase;
 use crate::clock::{next_multiple_after, Tick};
 use crate::diagnostics::{StageSeconds, WindowStats};
+use crate::dormancy::Dormancy;
 use crate::error::SimError;
 use crate::executor::{Executor, Serial};
 use crate::layers::{penalty_kick, LayerState};
@@ -93,6 +94,51 @@ const VERTEX_RUN: usize = 2048;
 /// Stencils per task of the penalty stage.
 const PENALTY_RUN: usize = 128;
 
+/// How long a stencil whose distance is at least `lower` at tick `t` (a
+/// lower bound of the computed distance, see [`distance_lower_bound`]) stays
+/// outside `eta_1`, the outermost layer, if its vertices keep their current
+/// velocities: returns the first tick it may not, and the room `lower - eta_1`
+/// less a rounding slack (no sleep unless positive).
+///
+/// With velocities fixed each vertex moves by exactly `|v| (t' - t) q` (its
+/// position is `x + v (t' - tau) q`), so the anchor-based lower bound at `t'`
+/// is at least `lower - (s_a + s_b) (t' - t) q`, `s_a`, `s_b` the largest
+/// speeds on each side. The extra slack `2^-40 (1 + max |coordinate|)`
+/// covers the rounding of the speeds and of the later positions, as in
+/// [`distance_lower_bound`].
+fn sleep(
+    key: &StencilKey,
+    lower: f64,
+    eta_1: f64,
+    x: &[DVec3; 4],
+    w: &World,
+    t: Tick,
+) -> (Tick, f64) {
+    let split = match key.kind {
+        StencilKind::VertexFace => 1,
+        StencilKind::EdgeEdge => 2,
+    };
+    let scale = x.iter().fold(0.0f64, |m, p| m.max(p.abs().max_element()));
+    let room = lower - eta_1 - (1.0 + scale) * f64::powi(2.0, -40);
+    if !(room > 0.0) {
+        return (t, room);
+    }
+    let speed = |r: std::ops::Range<usize>| {
+        r.map(|j| w.v[key.v[j] as usize].length())
+            .fold(0.0f64, f64::max)
+    };
+    let s = (speed(0..split) + speed(split..4)) * w.lattice.quantum;
+    let ticks = room / s; // +inf when nothing moves
+    let awake_at = if ticks >= (Tick::MAX - t) as f64 {
+        Tick::MAX
+    } else if ticks >= 1.0 {
+        t + ticks.floor() as Tick
+    } else {
+        return (t, 0.0); // would wake at once: not worth it
+    };
+    (awake_at, room)
+}
+
 /// Passes of one window that may end in a non-finite value (each rolled back
 /// with more layers) before the run stops with [`SimError::NonFinite`].
 const MAX_BLOWN_UP_PASSES: u32 = 3;
@@ -140,8 +186,12 @@ struct Workspace {
     /// Per active stencil: (tick + 1 of the batch it was computed in, data).
     closest: Vec<StencilCache>,
     bounds: Vec<usize>,
-    /// Run bounds over the active stencils for the penalty stage.
-    run_bounds: Vec<usize>,
+    /// Active stencils of a batch that got closest-point data (key order).
+    hits: Vec<u32>,
+    /// Awake stencils of the batch's outermost firing layer.
+    scan: Vec<u32>,
+    /// Which active stencils a batch may skip.
+    dormancy: Dormancy,
     /// (layer, active index) of the batch's stencils inside their layer.
     kick_items: Vec<(u32, u32)>,
     /// New velocities of an internal batch.
@@ -519,6 +569,7 @@ impl<E: Executor> Engine<E> {
         }
         self.ws.closest.clear();
         self.ws.closest.resize(active.len(), EMPTY_CACHE);
+        self.ws.dormancy.reset(&active, self.world.x.len());
         let mut batches = 0u64;
         loop {
             let t = next.iter().copied().min().unwrap_or(t1);
@@ -617,82 +668,112 @@ impl<E: Executor> Engine<E> {
         if let Some(&first) = layer_clocks.first() {
             let xt = internal.then_some(&ws.xt[..]);
             let eta_first = layer_consts[first as usize - 1].0;
+            let eta_1 = w.schedule.eta_1;
             // Phase 1: the closest-point data of every stencil of the batch,
             // once per batch (positions are those at `t` for every layer),
             // cached with the batch's tick as stamp. Every stencil firing now
             // is in layer `first` (the list of the outermost firing layer
             // holds the deeper ones), whose eta is the largest, so a stencil
-            // certainly outside it is outside every firing layer. Entries are
-            // independent: they are filled on the executor in fixed runs.
-            let refresh = |a: usize, cache: &mut StencilCache| {
-                let (key, depth) = &active[a];
-                if *depth < first {
-                    return;
-                }
-                if cache.stamp != t + 1 {
-                    cache.stamp = t + 1;
-                    cache.closest = None;
-                    cache.lower = f64::NEG_INFINITY;
-                }
-                let x = key.v.map(|i| match xt {
-                    Some(xt) => xt[i as usize],
-                    None => Self::pos_at(w, i as usize, t),
-                });
-                if let Some((d0, x0)) = &cache.anchor {
-                    if cache.lower == f64::NEG_INFINITY {
-                        cache.lower = distance_lower_bound(key.kind, *d0, x0, &x);
+            // certainly outside it is outside every firing layer.
+            //
+            // Asleep stencils (certified outside `eta_1` until a tick or a
+            // velocity change, see `sleep` and `crate::dormancy`) are not
+            // read; the awake ones of the outermost firing layer are
+            // restamped and evaluated, on the executor when there are enough
+            // of them (each entry's update depends on that entry alone).
+            ws.dormancy.wake_due(t);
+            ws.scan.clear();
+            ws.scan.extend(
+                ws.dormancy
+                    .awake()
+                    .iter()
+                    .copied()
+                    .filter(|&a| active[a as usize].1 >= first),
+            );
+            let closest = &ws.closest;
+            let scan = |run: &[u32]| -> Vec<(u32, StencilCache, Option<Tick>)> {
+                let mut updated = Vec::with_capacity(run.len());
+                for &a in run {
+                    let key = &active[a as usize].0;
+                    let mut cache = closest[a as usize];
+                    let mut asleep_until = None;
+                    if cache.stamp != t + 1 {
+                        cache.stamp = t + 1;
+                        cache.closest = None;
+                        cache.lower = f64::NEG_INFINITY;
                     }
-                }
-                // Certainly outside every firing layer: its kicks are zero,
-                // so skipping the evaluation leaves the same bits.
-                if cache.lower >= eta_first {
-                    return;
-                }
-                let c = stencil_closest(key.kind, &x);
-                cache.closest = Some(c);
-                cache.anchor = Some((c.d, x));
-            };
-            let union = &by_layer[first as usize - 1];
-            // Spans only for the batches large enough to run on the executor
-            // (the many small ones would flood the timeline).
-            let big = union.len() >= PARALLEL_MIN_STENCILS;
-            let closest_span =
-                big.then(|| trace::span_with("penalty closest", "stencils", union.len() as u64));
-            if big {
-                let n = active.len();
-                ws.run_bounds.clear();
-                ws.run_bounds
-                    .extend((0..=n.div_ceil(PENALTY_RUN)).map(|k| (k * PENALTY_RUN).min(n)));
-                self.exec
-                    .for_each_chunk(&mut ws.closest, &ws.run_bounds, &|k, run| {
-                        for (j, cache) in run.iter_mut().enumerate() {
-                            refresh(k * PENALTY_RUN + j, cache);
-                        }
+                    let x = key.v.map(|i| match xt {
+                        Some(xt) => xt[i as usize],
+                        None => Self::pos_at(w, i as usize, t),
                     });
+                    if let Some((d0, x0)) = &cache.anchor {
+                        if cache.lower == f64::NEG_INFINITY {
+                            cache.lower = distance_lower_bound(key.kind, *d0, x0, &x);
+                        }
+                    }
+                    // Certainly outside every firing layer: its kicks are
+                    // zero, so skipping the evaluation leaves the same bits.
+                    if cache.lower >= eta_first {
+                        let (awake_at, room) = sleep(key, cache.lower, eta_1, &x, w, t);
+                        if room > 0.0 {
+                            asleep_until = Some(awake_at);
+                        }
+                    } else {
+                        let c = stencil_closest(key.kind, &x);
+                        cache.closest = Some(c);
+                        cache.anchor = Some((c.d, x));
+                    }
+                    updated.push((a, cache, asleep_until));
+                }
+                updated
+            };
+            let list = &ws.scan;
+            let parallel = list.len() >= PARALLEL_MIN_STENCILS;
+            // Spans only for the batches that run on the executor (the many
+            // small ones would flood the timeline).
+            let closest_span = parallel
+                .then(|| trace::span_with("penalty closest", "stencils", list.len() as u64));
+            let updated: Vec<_> = if parallel {
+                self.exec
+                    .map(list.len().div_ceil(PENALTY_RUN), &|r| {
+                        scan(&list[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(list.len())])
+                    })
+                    .into_iter()
+                    .flatten()
+                    .collect()
             } else {
-                for &a in union {
-                    refresh(a as usize, &mut ws.closest[a as usize]);
-                }
-            }
+                scan(list)
+            };
             drop(closest_span);
-            for &a in union {
-                if let Some(c) = &ws.closest[a as usize].closest {
+            // Write back; only evaluated stencils have closest-point data
+            // (the others are certainly outside every firing layer). The
+            // hits go to phase 2 in key order (active index order).
+            ws.hits.clear();
+            for (a, cache, asleep_until) in updated {
+                if let Some(c) = &cache.closest {
                     counts.min_separation = counts.min_separation.min(c.d);
+                    ws.hits.push(a);
                 }
+                if let Some(until) = asleep_until {
+                    ws.dormancy.sleep(a, until);
+                }
+                ws.closest[a as usize] = cache;
             }
+            ws.dormancy.drop_sleepers();
+            ws.hits.sort_unstable();
             // Phase 2: the kicks of stencils inside their layer, computed
             // independently (they read the velocities at the start of the
-            // batch) and then summed per vertex in (layer, key) order.
+            // batch) and then summed per vertex in (layer, key) order: the
+            // hits are in key order, and layer `l` holds those of depth ≥ l.
             ws.kick_items.clear();
             for &l in layer_clocks {
                 let eta_l = layer_consts[l as usize - 1].0;
-                let list = &by_layer[l as usize - 1];
-                counts.layer_events += list.len() as u64;
-                for &a in list {
-                    if let Some(c) = &ws.closest[a as usize].closest {
-                        if c.d < eta_l {
-                            ws.kick_items.push((l, a)); // else a zero kick (NaN too)
-                        }
+                counts.layer_events += by_layer[l as usize - 1].len() as u64;
+                for &a in &ws.hits {
+                    let inside = active[a as usize].1 >= l
+                        && ws.closest[a as usize].closest.is_some_and(|c| c.d < eta_l);
+                    if inside {
+                        ws.kick_items.push((l, a)); // else a zero kick (NaN too)
                     }
                 }
             }
@@ -784,6 +865,9 @@ impl<E: Executor> Engine<E> {
                 world.x[i] = x;
                 world.tau[i] = t;
                 world.v[i] = v_new;
+                if !internal {
+                    ws.dormancy.wake_vertex(i);
+                }
                 self.traj
                     .record(i, t, x)
                     .map_err(|e| budget_error(world, window_start, e))?;
@@ -795,6 +879,8 @@ impl<E: Executor> Engine<E> {
                 apply(i, Some(ws.xt[i]))?;
             }
             ws.touched.clear();
+            // Every velocity changed (or may have): every stencil wakes.
+            ws.dormancy.wake_all();
         } else {
             let touched = std::mem::take(&mut ws.touched);
             for &i in &touched {

@@ -16,6 +16,7 @@
 //! | [`trajectory`] | per-window breakpoint storage under a memory budget |
 //! | [`balance`] | narrow-phase tasks by partition pair, profiled costs, the locality-aware assignment |
 //! | [`broad`] | 26-DOP BVH broad phase with stencil-level filtering |
+//! | [`dormancy`] | which active stencils a penalty batch may skip (asleep until a tick or a velocity change) |
 //! | [`engine`] | the window / detect / rollback / commit loop |
 //! | [`diagnostics`] | per-window statistics |
 //! | [`executor`] | the `Executor` trait and the `Serial` executor |
@@ -29,6 +30,7 @@ pub mod broad;
 pub mod clock;
 pub mod config;
 pub mod diagnostics;
+pub mod dormancy;
 pub mod engine;
 pub mod error;
 pub mod executor;

@@ -110,7 +110,9 @@ pub fn scene_info(scene: &weft_io::scene::Scene) -> anyhow::Result<SceneInfo> {
             .iter()
             .filter(|&&[a, b]| {
                 let p = &w.partitioning.of_triangle;
-                b != weft_core::NONE && p[a as usize] != weft_core::NONE && p[b as usize] != p[a as usize]
+                b != weft_core::NONE
+                    && p[a as usize] != weft_core::NONE
+                    && p[b as usize] != p[a as usize]
             })
             .count(),
         max_initial_strain,

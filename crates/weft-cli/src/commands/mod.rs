@@ -1,5 +1,6 @@
 //! One module per subcommand.
 
+pub mod bench;
 pub mod ccd_bench;
 pub mod check;
 pub mod info;

@@ -1244,7 +1244,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             steps_per_window,
         },
         limits: LimitsConfig::default(),
-        partitions: file.partitions.max(1),
+        partitions: file.partitions,
     };
     if file.contact.layer1_step_shift > 16 {
         return Err(invalid(

@@ -200,7 +200,8 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     let result = if threads.threads() == 1 {
         execute(job, Serial)
     } else {
-        execute(job, threads)
+        let exec = threads.clone();
+        threads.install(move || execute(job, exec))
     };
     // The timeline is written whatever the outcome: a failed run's is the
     // one worth reading.
@@ -229,7 +230,7 @@ pub fn simulate(scene: &Scene, out: &Path, quiet: bool) -> anyhow::Result<RunSum
 }
 
 /// Writes the recorded spans to `path` as Chrome-trace JSON.
-fn write_trace(path: &Path, scene: &str, quiet: bool) -> anyhow::Result<()> {
+pub(crate) fn write_trace(path: &Path, scene: &str, quiet: bool) -> anyhow::Result<()> {
     weft_sim::trace::set_recording(false);
     let (spans, tracks, dropped) = weft_sim::trace::take();
     let mut text = Vec::new();

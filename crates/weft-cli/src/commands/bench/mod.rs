@@ -1,0 +1,669 @@
+//! `weft bench [SCENE] [--size N] [--checkpoint FILE] [--make-checkpoint]
+//! [--windows N] [--threads 1,2,...] [--repeats N] [--json]`: the engine's
+//! throughput on a scene at the published discretization (windows of 1/3000 s
+//! of 140 internal steps), starting from a checkpoint in a contact-heavy state.
+//!
+//! For each thread count and each repeat the engine is built afresh, restored
+//! from the checkpoint and stepped `--windows` windows; the report holds the
+//! median over the repeats of the wall time per window (in total and per
+//! stage), internal stencil evaluations per core-second, narrow-phase queries
+//! per second, and the parallel efficiency T(1) / (n T(n)); the rollbacks per
+//! window, the state hash after the run (checked equal for every run and
+//! thread count), the process's peak memory per vertex and the machine's
+//! processor topology.
+
+pub mod machine;
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use clap::Args;
+use serde::Serialize;
+use weft_io::checkpoint::read_checkpoint;
+use weft_io::scene::load_scene;
+use weft_par::Threads;
+use weft_sim::{Engine, EngineState, Executor, Serial, World};
+
+use super::run::{execute, scene_hash, signals::StopRequest, RunJob, CHECKPOINT_FILE};
+use machine::Topology;
+
+/// The published discretization (Ni et al.): windows of 1/3000 s ...
+const PUBLISHED_WINDOW: f64 = 1.0 / 3000.0;
+/// ... of 140 internal steps each.
+const PUBLISHED_STEPS: u64 = 140;
+
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    /// The scene file (TOML).
+    #[arg(default_value = "scenes/twister.toml")]
+    pub scene: PathBuf,
+    /// Override a scene value: `--set key.path=value` (repeatable). Applied after
+    /// the published discretization (`time.window=1/3000`, `time.steps_per_window=140`),
+    /// so `--set` can replace it.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
+    /// About N cloth vertices (`--set size=N`).
+    #[arg(long, value_name = "N")]
+    pub size: Option<u64>,
+    /// The checkpoint to start from [default: bench/<scene>-<size>.wckp]. It must
+    /// come from the same scene, size and overrides.
+    #[arg(long, value_name = "FILE")]
+    pub checkpoint: Option<PathBuf>,
+    /// Make the checkpoint first: run the scene from the start to --warmup in the
+    /// folder <checkpoint without extension>.warmup/ and copy its checkpoint.
+    #[arg(long)]
+    pub make_checkpoint: bool,
+    /// Simulated seconds the --make-checkpoint run covers (rounded up to a whole
+    /// window); by the default the twister's sleeve has shrunk onto the rod and
+    /// grips it (about 1,000 active stencils at --size 2000).
+    #[arg(long, value_name = "SECONDS", default_value_t = 0.01)]
+    pub warmup: f64,
+    /// Windows per run.
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    pub windows: u64,
+    /// Thread counts to run, comma separated (1: the serial executor)
+    /// [default: 1 and one per available logical CPU].
+    #[arg(long, value_name = "N,...", value_delimiter = ',')]
+    pub threads: Vec<usize>,
+    /// Runs per thread count; the report holds their median.
+    #[arg(long, value_name = "N", default_value_t = 5)]
+    pub repeats: usize,
+    /// Also print the report as one JSON object on the last line.
+    #[arg(long)]
+    pub json: bool,
+    /// Write a timeline (Chrome-trace JSON, as `weft run --trace`) of the last
+    /// run of the largest thread count.
+    #[arg(long, value_name = "FILE")]
+    pub trace: Option<PathBuf>,
+}
+
+/// The totals of one run of `--windows` windows.
+#[derive(Clone, Debug, Default)]
+struct Sample {
+    wall: f64,
+    events: f64,
+    broad: f64,
+    narrow: f64,
+    commit: f64,
+    internal_evaluations: u64,
+    layer_events: u64,
+    rollbacks: u64,
+    /// Narrow-phase queries over all passes (rolled-back ones included).
+    narrow_queries: u64,
+    active_stencils: u64,
+    max_depth: u32,
+    state_hash: String,
+}
+
+/// Seconds per window, median over the repeats.
+#[derive(Clone, Debug, Serialize)]
+pub struct StageTimes {
+    pub events: f64,
+    pub broad: f64,
+    pub narrow: f64,
+    pub commit: f64,
+    /// Wall time outside the four stages (snapshots, restores, statistics).
+    pub other: f64,
+}
+
+/// The figures of one thread count.
+#[derive(Clone, Debug, Serialize)]
+pub struct ThreadResult {
+    pub threads: usize,
+    pub executor: String,
+    /// Median wall-clock seconds per window, and each run's.
+    pub wall_seconds_per_window: f64,
+    pub runs_wall_seconds_per_window: Vec<f64>,
+    pub stage_seconds_per_window: StageTimes,
+    /// Committed-pass internal stencil evaluations / (wall seconds · threads).
+    pub internal_evaluations_per_core_second: f64,
+    /// The same over the events stage's time only.
+    pub internal_evaluations_per_events_core_second: f64,
+    /// Narrow-phase queries (all passes) / narrow-stage seconds.
+    pub narrow_queries_per_second: f64,
+    /// T(1) / T(n) and T(1) / (n · T(n)) from the medians (null without a
+    /// 1-thread run).
+    pub speedup: Option<f64>,
+    pub parallel_efficiency: Option<f64>,
+}
+
+/// What `weft bench` reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct BenchReport {
+    pub scene: String,
+    pub scene_path: PathBuf,
+    pub overrides: Vec<String>,
+    pub scene_hash: String,
+    pub checkpoint: PathBuf,
+    pub vertices: usize,
+    pub cloth_vertices: usize,
+    pub triangles: usize,
+    pub internal_stencils: usize,
+    pub partitions: usize,
+    pub window_seconds: f64,
+    pub steps_per_window: u64,
+    pub internal_step: f64,
+    /// Simulated time, window index and active (penalty) stencils at the checkpoint.
+    pub start_time: f64,
+    pub start_window: u64,
+    pub start_active_stencils: usize,
+    pub windows: u64,
+    pub repeats: usize,
+    /// Per window of the benchmark (the same in every run).
+    pub rollbacks_per_window: f64,
+    pub narrow_queries_per_window: f64,
+    pub internal_evaluations_per_window: f64,
+    pub layer_events_per_window: f64,
+    /// Active stencils and their deepest layer after the last window.
+    pub end_active_stencils: u64,
+    pub end_max_depth: u32,
+    /// State hash after the last window, and whether every run agreed on it.
+    pub state_hash: String,
+    pub deterministic: bool,
+    /// Peak resident memory of the process while benchmarking (VmHWM), in
+    /// bytes and per vertex; null where the system does not tell.
+    pub peak_rss_bytes: Option<u64>,
+    pub peak_bytes_per_vertex: Option<f64>,
+    pub machine: Topology,
+    pub results: Vec<ThreadResult>,
+}
+
+pub fn run(a: BenchArgs) -> anyhow::Result<ExitCode> {
+    if a.windows == 0 {
+        bail!("--windows must be at least 1");
+    }
+    if a.repeats == 0 {
+        bail!("--repeats must be at least 1");
+    }
+    let threads = thread_counts(&a.threads)?;
+    let mut overrides = vec![
+        format!("time.window={PUBLISHED_WINDOW}"),
+        format!("time.steps_per_window={PUBLISHED_STEPS}"),
+    ];
+    if let Some(n) = a.size {
+        overrides.push(format!("size={n}"));
+    }
+    overrides.extend(a.overrides.iter().cloned());
+    let scene = load_scene(&a.scene, &overrides)?;
+    let world = weft_par::build_world(&scene.world)?;
+    let hash = scene_hash(&scene, &world);
+    let checkpoint = a.checkpoint.clone().unwrap_or_else(|| {
+        let size = a.size.map_or("default".to_string(), |n| n.to_string());
+        PathBuf::from("bench").join(format!("{}-{size}.wckp", scene.name))
+    });
+
+    if a.make_checkpoint {
+        make_checkpoint(&a, &overrides, &checkpoint, threads.iter().copied().max())?;
+    } else if !checkpoint.exists() {
+        bail!(
+            "no checkpoint at {}; make one with\n  {} --make-checkpoint",
+            checkpoint.display(),
+            command_line()
+        );
+    }
+    let ck = read_checkpoint(&checkpoint)
+        .with_context(|| format!("reading the checkpoint {}", checkpoint.display()))?;
+    if ck.scene_hash != hash {
+        bail!(
+            "{}: the checkpoint was made from another scene, size or overrides (scene `{}`, \
+             scene hash {}); this bench runs `{}` with {} (scene hash {}). Make a matching one \
+             with --make-checkpoint",
+            checkpoint.display(),
+            ck.scene_name,
+            ck.scene_hash,
+            scene.name,
+            overrides.join(" "),
+            hash
+        );
+    }
+    let start = ck.engine;
+    let lattice = &world.lattice;
+    let mut report = BenchReport {
+        scene: scene.name.clone(),
+        scene_path: scene.path.clone(),
+        overrides: overrides.clone(),
+        scene_hash: hash,
+        checkpoint: checkpoint.clone(),
+        vertices: world.num_vertices(),
+        cloth_vertices: world
+            .objects
+            .iter()
+            .filter(|o| o.is_cloth)
+            .map(|o| o.vertices.len())
+            .sum(),
+        triangles: world.triangles.len(),
+        internal_stencils: world.internal.num_stencils(),
+        partitions: world.partitioning.count,
+        window_seconds: lattice.seconds(lattice.window()),
+        steps_per_window: lattice.steps_per_window,
+        internal_step: lattice.h_el(),
+        start_time: lattice.seconds(start.tick),
+        start_window: start.window_index,
+        start_active_stencils: start.layers.len(),
+        windows: a.windows,
+        repeats: a.repeats,
+        rollbacks_per_window: 0.0,
+        narrow_queries_per_window: 0.0,
+        internal_evaluations_per_window: 0.0,
+        layer_events_per_window: 0.0,
+        end_active_stencils: 0,
+        end_max_depth: 0,
+        state_hash: String::new(),
+        deterministic: true,
+        peak_rss_bytes: None,
+        peak_bytes_per_vertex: None,
+        machine: Topology::this(),
+        results: Vec::new(),
+    };
+    eprintln!(
+        "weft bench: {} — {} vertices, {} steps of {:.4e} s per window, from t = {:.6} s \
+         ({} active stencils); {} windows × {} runs per thread count",
+        report.scene,
+        report.vertices,
+        report.steps_per_window,
+        report.internal_step,
+        report.start_time,
+        report.start_active_stencils,
+        a.windows,
+        a.repeats
+    );
+
+    // The peak from here on: the benchmark runs, not the checkpoint's making.
+    machine::reset_peak_rss();
+    let mut all: Vec<(usize, Vec<Sample>)> = Vec::new();
+    for &n in &threads {
+        let mut samples = Vec::with_capacity(a.repeats);
+        for r in 0..a.repeats {
+            let traced = a.trace.is_some() && Some(&n) == threads.last() && r + 1 == a.repeats;
+            weft_sim::trace::set_recording(traced);
+            let s = if n == 1 {
+                measure(world.clone(), Serial, start.clone(), a.windows)
+            } else {
+                let exec = Threads::new(n).context("cannot start the worker threads")?;
+                let (world, start) = (world.clone(), start.clone());
+                exec.clone()
+                    .install(move || measure(world, exec, start, a.windows))
+            }
+            .with_context(|| format!("{n} thread(s), run {}", r + 1))?;
+            eprintln!(
+                "weft bench: {n} thread(s), run {}/{}: {:.4} s per window",
+                r + 1,
+                a.repeats,
+                s.wall / a.windows as f64
+            );
+            samples.push(s);
+        }
+        all.push((n, samples));
+    }
+    if let Some(path) = &a.trace {
+        super::run::write_trace(path, &report.scene, false)?;
+    }
+    report.peak_rss_bytes = machine::peak_rss_bytes();
+    report.peak_bytes_per_vertex = report
+        .peak_rss_bytes
+        .map(|b| b as f64 / report.vertices as f64);
+    summarize(&mut report, &all);
+
+    print!("{}", table(&report));
+    if a.json {
+        println!("{}", serde_json::to_string(&report)?);
+    }
+    if !report.deterministic {
+        let hashes: Vec<String> = all
+            .iter()
+            .flat_map(|(n, s)| s.iter().map(move |s| format!("{n}: {}", s.state_hash)))
+            .collect();
+        bail!(
+            "the runs ended in different states (thread count: state hash): {}",
+            hashes.join(", ")
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The thread counts to run: as given (each at least 1, no repeats), or 1 and
+/// one per available logical CPU.
+fn thread_counts(given: &[usize]) -> anyhow::Result<Vec<usize>> {
+    if given.is_empty() {
+        let all = std::thread::available_parallelism().map_or(1, |n| n.get());
+        return Ok(if all > 1 { vec![1, all] } else { vec![1] });
+    }
+    let mut seen = Vec::new();
+    for &n in given {
+        if n == 0 {
+            bail!("--threads: thread counts must be at least 1 (got 0)");
+        }
+        if seen.contains(&n) {
+            bail!("--threads: {n} is listed twice");
+        }
+        seen.push(n);
+    }
+    Ok(seen)
+}
+
+/// The command line of this process, for a message that suggests a variant.
+fn command_line() -> String {
+    std::env::args()
+        .map(|a| {
+            if !a.is_empty()
+                && a.bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b"-_=./,:+".contains(&b))
+            {
+                a
+            } else {
+                format!("'{}'", a.replace('\'', r"'\''"))
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// Runs the bench's scene from the start to `--warmup` with `weft run`'s
+/// machinery and keeps its last checkpoint at `path`.
+fn make_checkpoint(
+    a: &BenchArgs,
+    overrides: &[String],
+    path: &Path,
+    threads: Option<usize>,
+) -> anyhow::Result<()> {
+    if !(a.warmup.is_finite() && a.warmup > 0.0) {
+        bail!(
+            "--warmup must be a positive number of seconds (got {})",
+            a.warmup
+        );
+    }
+    let mut warm = overrides.to_vec();
+    warm.push(format!("time.end={}", a.warmup));
+    let scene = load_scene(&a.scene, &warm)?;
+    let out = path.with_extension("warmup");
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("cannot create {}", parent.display()))?;
+    }
+    eprintln!(
+        "weft bench: making the checkpoint: {} from t = 0 to {} s in {}",
+        scene.name,
+        a.warmup,
+        out.display()
+    );
+    let job = RunJob {
+        scene: &scene,
+        out: &out,
+        quiet: false,
+        resume: false,
+        stop: StopRequest::new(),
+        preview: false,
+        command_line: std::env::args().collect(),
+        trace_windows: None,
+    };
+    let n = threads.unwrap_or(1);
+    let summary = if n <= 1 {
+        execute(job, Serial)?
+    } else {
+        execute(
+            job,
+            Threads::new(n).context("cannot start the worker threads")?,
+        )?
+    };
+    let made = out.join(CHECKPOINT_FILE);
+    let bytes = std::fs::read(&made).with_context(|| format!("reading {}", made.display()))?;
+    weft_io::write_atomic(path, &bytes).with_context(|| format!("writing {}", path.display()))?;
+    let ck = read_checkpoint(path)?;
+    eprintln!(
+        "weft bench: checkpoint {} at t = {:.6} s (window {}): {} active stencils (peak {} on \
+         the way, {} rollbacks, {:.1} s); the run folder stays in {}",
+        path.display(),
+        summary.simulated_seconds,
+        ck.engine.window_index,
+        ck.engine.layers.len(),
+        summary.max_active_stencils,
+        summary.rollbacks,
+        summary.wall_seconds,
+        out.display()
+    );
+    Ok(())
+}
+
+/// Restores `start` into a fresh engine over `world` and steps `windows` windows.
+fn measure<E: Executor>(
+    world: World,
+    exec: E,
+    start: EngineState,
+    windows: u64,
+) -> anyhow::Result<Sample> {
+    let mut engine = Engine::new(world, exec)?;
+    engine.restore(start)?;
+    let queries_before = engine.totals.narrow_queries;
+    let mut s = Sample::default();
+    let clock = Instant::now();
+    for _ in 0..windows {
+        let w = engine.step_window()?;
+        s.events += w.stage_seconds.events;
+        s.broad += w.stage_seconds.broad;
+        s.narrow += w.stage_seconds.narrow;
+        s.commit += w.stage_seconds.commit;
+        s.internal_evaluations += w.internal_stencil_evaluations;
+        s.layer_events += w.layer_events;
+        s.rollbacks += u64::from(w.rollbacks);
+        s.active_stencils = w.active_stencils;
+        s.max_depth = w.max_depth;
+    }
+    s.wall = clock.elapsed().as_secs_f64();
+    s.narrow_queries = engine.totals.narrow_queries - queries_before;
+    s.state_hash = engine.state_hash();
+    Ok(s)
+}
+
+/// The median (the mean of the middle two for an even count).
+fn median(values: &[f64]) -> f64 {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let m = v.len() / 2;
+    if v.len() % 2 == 1 {
+        v[m]
+    } else {
+        0.5 * (v[m - 1] + v[m])
+    }
+}
+
+/// Fills the report's figures from the samples of each thread count.
+fn summarize(r: &mut BenchReport, all: &[(usize, Vec<Sample>)]) {
+    let first = &all[0].1[0];
+    let windows = r.windows as f64;
+    r.rollbacks_per_window = first.rollbacks as f64 / windows;
+    r.narrow_queries_per_window = first.narrow_queries as f64 / windows;
+    r.internal_evaluations_per_window = first.internal_evaluations as f64 / windows;
+    r.layer_events_per_window = first.layer_events as f64 / windows;
+    r.end_active_stencils = first.active_stencils;
+    r.end_max_depth = first.max_depth;
+    r.state_hash = first.state_hash.clone();
+    r.deterministic = all.iter().flat_map(|(_, s)| s).all(|s| {
+        s.state_hash == first.state_hash
+            && s.rollbacks == first.rollbacks
+            && s.narrow_queries == first.narrow_queries
+            && s.internal_evaluations == first.internal_evaluations
+    });
+    for (n, samples) in all {
+        let n = *n;
+        let med = |f: &dyn Fn(&Sample) -> f64| median(&samples.iter().map(f).collect::<Vec<_>>());
+        let runs: Vec<f64> = samples.iter().map(|s| s.wall / windows).collect();
+        let wall = median(&runs);
+        let events = med(&|s| s.events / windows);
+        let broad = med(&|s| s.broad / windows);
+        let narrow = med(&|s| s.narrow / windows);
+        let commit = med(&|s| s.commit / windows);
+        let other = med(&|s| (s.wall - s.events - s.broad - s.narrow - s.commit) / windows);
+        let evals = first.internal_evaluations as f64;
+        r.results.push(ThreadResult {
+            threads: n,
+            executor: if n == 1 {
+                "serial".into()
+            } else {
+                format!("threads({n})")
+            },
+            wall_seconds_per_window: wall,
+            runs_wall_seconds_per_window: runs.clone(),
+            stage_seconds_per_window: StageTimes {
+                events,
+                broad,
+                narrow,
+                commit,
+                other,
+            },
+            internal_evaluations_per_core_second: med(&|s| evals / (s.wall * n as f64)),
+            internal_evaluations_per_events_core_second: med(&|s| evals / (s.events * n as f64)),
+            narrow_queries_per_second: med(&|s| s.narrow_queries as f64 / s.narrow),
+            speedup: None,
+            parallel_efficiency: None,
+        });
+    }
+    if let Some(t1) = r
+        .results
+        .iter()
+        .find(|t| t.threads == 1)
+        .map(|t| t.wall_seconds_per_window)
+    {
+        for t in &mut r.results {
+            let speedup = t1 / t.wall_seconds_per_window;
+            t.speedup = Some(speedup);
+            t.parallel_efficiency = Some(speedup / t.threads as f64);
+        }
+    }
+}
+
+/// The human-readable report.
+fn table(r: &BenchReport) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let ms = |x: f64| format!("{:.2}", x * 1e3);
+    let _ = writeln!(
+        s,
+        "scene       {} ({}), {} vertices ({} cloth), {} triangles, {} internal stencils, {} partitions",
+        r.scene,
+        r.scene_path.display(),
+        r.vertices,
+        r.cloth_vertices,
+        r.triangles,
+        r.internal_stencils,
+        r.partitions
+    );
+    let _ = writeln!(
+        s,
+        "time        windows of {:.6e} s = {} internal steps of {:.4e} s",
+        r.window_seconds, r.steps_per_window, r.internal_step
+    );
+    let _ = writeln!(
+        s,
+        "start       {}: t = {:.6} s (window {}), {} active stencils",
+        r.checkpoint.display(),
+        r.start_time,
+        r.start_window,
+        r.start_active_stencils
+    );
+    let _ = writeln!(
+        s,
+        "runs        {} windows per run, median of {} runs per thread count",
+        r.windows, r.repeats
+    );
+    let _ = writeln!(s, "machine     {}", r.machine.describe());
+    let _ = writeln!(
+        s,
+        "per window  {:.2} rollbacks, {:.0} narrow-phase queries, {:.4e} internal stencil \
+         evaluations, {:.4e} penalty-layer evaluations",
+        r.rollbacks_per_window,
+        r.narrow_queries_per_window,
+        r.internal_evaluations_per_window,
+        r.layer_events_per_window
+    );
+    let _ = writeln!(
+        s,
+        "end         {} active stencils, depth {}, state hash {} ({})",
+        r.end_active_stencils,
+        r.end_max_depth,
+        r.state_hash,
+        if r.deterministic {
+            "the same in every run"
+        } else {
+            "RUNS DIFFER"
+        }
+    );
+    let _ = writeln!(
+        s,
+        "memory      {}",
+        match (r.peak_rss_bytes, r.peak_bytes_per_vertex) {
+            (Some(b), Some(v)) => format!(
+                "process peak {:.1} MB = {:.0} bytes per vertex (VmHWM)",
+                b as f64 / 1e6,
+                v
+            ),
+            _ => "unknown (no /proc/self/status)".into(),
+        }
+    );
+    let _ = writeln!(s);
+    let _ = writeln!(
+        s,
+        "{:>7} {:>10} {:>8} {:>8} {:>8} {:>8} {:>8} {:>12} {:>12} {:>12} {:>8} {:>10}",
+        "threads",
+        "ms/window",
+        "events",
+        "broad",
+        "narrow",
+        "commit",
+        "other",
+        "evals/core·s",
+        "(events)",
+        "queries/s",
+        "speedup",
+        "efficiency"
+    );
+    for t in &r.results {
+        let st = &t.stage_seconds_per_window;
+        let _ = writeln!(
+            s,
+            "{:>7} {:>10} {:>8} {:>8} {:>8} {:>8} {:>8} {:>12.4e} {:>12.4e} {:>12.4e} {:>8} {:>10}",
+            t.threads,
+            ms(t.wall_seconds_per_window),
+            ms(st.events),
+            ms(st.broad),
+            ms(st.narrow),
+            ms(st.commit),
+            ms(st.other),
+            t.internal_evaluations_per_core_second,
+            t.internal_evaluations_per_events_core_second,
+            t.narrow_queries_per_second,
+            t.speedup.map_or("—".into(), |x| format!("{x:.2}")),
+            t.parallel_efficiency
+                .map_or("—".into(), |x| format!("{:.0} %", 100.0 * x)),
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nTimes are milliseconds per window (median). evals/core·s: committed-pass internal \
+         stencil evaluations per wall second per thread; (events): the same over the events \
+         stage only; queries/s: narrow-phase queries (all passes) per narrow-stage second; \
+         efficiency: T(1) / (n · T(n)), T(1) on the serial executor."
+    );
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn medians() {
+        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), 2.5);
+        assert_eq!(median(&[7.0]), 7.0);
+    }
+
+    #[test]
+    fn thread_lists() {
+        assert_eq!(thread_counts(&[1, 2]).unwrap(), vec![1, 2]);
+        assert!(thread_counts(&[0]).is_err());
+        assert!(thread_counts(&[2, 2]).is_err());
+        assert!(!thread_counts(&[]).unwrap().is_empty());
+    }
+}

@@ -1,0 +1,253 @@
+//! `weft bench`: a small benchmark end to end, and the checks on its
+//! checkpoint and options.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn scene(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes")
+        .join(name)
+}
+
+fn weft(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_weft"))
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .expect("weft runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn last_json(o: &Output) -> serde_json::Value {
+    let text = String::from_utf8_lossy(&o.stdout);
+    let line = text.lines().last().expect("some output");
+    serde_json::from_str(line).unwrap_or_else(|e| panic!("last line is not JSON ({e}): {line}"))
+}
+
+fn positive(j: &serde_json::Value, key: &str) -> f64 {
+    let v = j[key]
+        .as_f64()
+        .unwrap_or_else(|| panic!("{key} is not a number: {j}"));
+    assert!(v.is_finite() && v > 0.0, "{key} = {v}");
+    v
+}
+
+/// Makes a crumple checkpoint of `size` vertices at t = `warmup` in `dir`
+/// through a one-window bench, and returns its path.
+fn small_checkpoint(dir: &Path, size: &str, warmup: &str) -> PathBuf {
+    let ck = dir.join(format!("crumple-{size}.wckp"));
+    let crumple = scene("crumple.toml");
+    let o = weft(
+        dir,
+        &[
+            "bench",
+            crumple.to_str().unwrap(),
+            "--size",
+            size,
+            "--warmup",
+            warmup,
+            "--make-checkpoint",
+            "--checkpoint",
+            ck.to_str().unwrap(),
+            "--windows",
+            "1",
+            "--repeats",
+            "1",
+            "--threads",
+            "1",
+        ],
+    );
+    assert!(o.status.success(), "bench failed: {}", stderr(&o));
+    ck
+}
+
+#[test]
+fn bench_reports_throughput_and_efficiency_from_a_checkpoint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ck = tmp.path().join("c.wckp");
+    let crumple = scene("crumple.toml");
+    let o = weft(
+        tmp.path(),
+        &[
+            "bench",
+            crumple.to_str().unwrap(),
+            "--set",
+            "size=150",
+            "--warmup",
+            "0.1",
+            "--make-checkpoint",
+            "--checkpoint",
+            ck.to_str().unwrap(),
+            "--windows",
+            "2",
+            "--repeats",
+            "2",
+            "--threads",
+            "1,2",
+            "--json",
+        ],
+    );
+    let err = stderr(&o);
+    assert!(o.status.success(), "bench failed: {err}");
+    print!("{}", String::from_utf8_lossy(&o.stdout));
+    assert!(ck.exists(), "no checkpoint written");
+    assert!(tmp.path().join("c.warmup/manifest.json").exists());
+    assert!(err.contains("active stencils"), "{err}");
+    let j = last_json(&o);
+
+    assert_eq!(j["scene"], "crumple");
+    assert_eq!(j["steps_per_window"], 140);
+    let window = positive(&j, "window_seconds");
+    assert!((window - 1.0 / 3000.0).abs() < 1e-12, "window {window}");
+    // The checkpoint is at the first window boundary at or after 0.1 s.
+    let t0 = positive(&j, "start_time");
+    assert!((0.1..0.1 + window + 1e-12).contains(&t0), "start {t0}");
+    assert!(j["start_active_stencils"].as_u64().unwrap() > 0, "{j}");
+    positive(&j, "internal_evaluations_per_window");
+    assert!(positive(&j, "narrow_queries_per_window") >= 1.0);
+    assert!(j["rollbacks_per_window"].as_f64().unwrap() >= 0.0);
+    assert_eq!(j["windows"], 2);
+    assert_eq!(j["repeats"], 2);
+    assert_eq!(j["deterministic"], true);
+    let hash = j["state_hash"].as_str().unwrap();
+    assert_eq!(hash.len(), 32, "{hash}");
+    // Linux: the process peak per vertex.
+    if Path::new("/proc/self/status").exists() {
+        positive(&j, "peak_rss_bytes");
+        positive(&j, "peak_bytes_per_vertex");
+    }
+    let m = &j["machine"];
+    assert!(m["available_cpus"].as_u64().unwrap() >= 1, "{m}");
+
+    let results = j["results"].as_array().unwrap();
+    assert_eq!(results.len(), 2);
+    for (r, n) in results.iter().zip([1u64, 2]) {
+        assert_eq!(r["threads"], n);
+        assert_eq!(
+            r["runs_wall_seconds_per_window"].as_array().unwrap().len(),
+            2
+        );
+        let wall = positive(r, "wall_seconds_per_window");
+        let st = &r["stage_seconds_per_window"];
+        let stages: f64 = ["events", "broad", "narrow", "commit"]
+            .iter()
+            .map(|k| positive(st, k))
+            .sum();
+        assert!(stages <= wall * 1.0001, "stages {stages} > wall {wall}");
+        positive(r, "internal_evaluations_per_core_second");
+        positive(r, "internal_evaluations_per_events_core_second");
+        positive(r, "narrow_queries_per_second");
+        let e = positive(r, "parallel_efficiency");
+        assert!(e <= 1.5, "efficiency {e}");
+        positive(r, "speedup");
+    }
+    assert_eq!(results[0]["parallel_efficiency"], 1.0);
+}
+
+#[test]
+fn a_checkpoint_of_another_scene_or_size_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ck = small_checkpoint(tmp.path(), "100", "0.002");
+    let path = ck.to_str().unwrap();
+    let crumple = scene("crumple.toml");
+    let drape = scene("drape.toml");
+    for (scene, size) in [(&crumple, "120"), (&drape, "100")] {
+        let o = weft(
+            tmp.path(),
+            &[
+                "bench",
+                scene.to_str().unwrap(),
+                "--size",
+                size,
+                "--checkpoint",
+                path,
+                "--windows",
+                "1",
+                "--repeats",
+                "1",
+                "--threads",
+                "1",
+            ],
+        );
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains("the checkpoint was made from another scene, size or overrides"),
+            "{err}"
+        );
+        assert!(err.contains("--make-checkpoint"), "{err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    // The matching scene still runs from it.
+    let o = weft(
+        tmp.path(),
+        &[
+            "bench",
+            crumple.to_str().unwrap(),
+            "--size",
+            "100",
+            "--checkpoint",
+            path,
+            "--windows",
+            "1",
+            "--repeats",
+            "1",
+            "--threads",
+            "1",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn missing_checkpoint_and_bad_options_are_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let crumple = scene("crumple.toml");
+    let c = crumple.to_str().unwrap();
+    // No checkpoint at the default path: say how to make one.
+    let o = weft(tmp.path(), &["bench", c, "--size", "100"]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("bench/crumple-100.wckp"), "{err}");
+    assert!(err.contains("--make-checkpoint"), "{err}");
+
+    let cases: &[(&[&str], &str)] = &[
+        (&["--threads", "0"], "at least 1"),
+        (&["--threads", "1,1"], "twice"),
+        (&["--windows", "0"], "--windows"),
+        (&["--repeats", "0"], "--repeats"),
+        (&["--make-checkpoint", "--warmup", "0"], "--warmup"),
+    ];
+    for (extra, want) in cases {
+        let mut args = vec!["bench", c, "--size", "100"];
+        args.extend_from_slice(extra);
+        let o = weft(tmp.path(), &args);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{extra:?}: {err}");
+        assert!(err.contains(want), "{extra:?}: {err}");
+    }
+    let o = weft(tmp.path(), &["bench", "no-such-scene.toml"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("no-such-scene.toml"), "{}", stderr(&o));
+    // A checkpoint file that is not one.
+    let junk = tmp.path().join("junk.wckp");
+    std::fs::write(&junk, b"not a checkpoint").unwrap();
+    let o = weft(
+        tmp.path(),
+        &[
+            "bench",
+            c,
+            "--size",
+            "100",
+            "--checkpoint",
+            junk.to_str().unwrap(),
+        ],
+    );
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("junk.wckp"), "{err}");
+}
