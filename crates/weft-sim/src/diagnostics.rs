@@ -81,6 +81,10 @@ pub struct WindowTiming {
 pub struct StageSeconds {
     /// Event batches (internal forces, penalty layers, scripts) and trajectories.
     pub events: f64,
+    /// The internal-force part of `events`: positions at the tick, stencil
+    /// evaluation and the per-vertex folds of internal ticks.
+    #[serde(default)]
+    pub internal: f64,
     /// Broad phase (DOPs, BVH, stencil filtering).
     pub broad: f64,
     /// Narrow phase (continuous proximity tests).

@@ -166,6 +166,8 @@ struct PassCounts {
     layer_events: u64,
     layer_kicks: u64,
     min_separation: f64,
+    /// Wall seconds of the internal-force part of internal ticks.
+    internal_seconds: f64,
     /// The pass ended early because a value became non-finite.
     truncated: Option<SimError>,
     /// The pass stopped early because the engine was interrupted.
@@ -433,6 +435,7 @@ impl<E: Executor> Engine<E> {
             };
             drop(events_span);
             stages.events += clock.elapsed().as_secs_f64();
+            stages.internal += counts.internal_seconds;
             if let Some(e) = counts.interrupted.take() {
                 snap.restore(&mut self.world);
                 return Err(e);
@@ -638,6 +641,7 @@ impl<E: Executor> Engine<E> {
         let n = w.x.len();
         if internal {
             let _span = trace::span("internal tick");
+            let clock = Instant::now();
             counts.internal_events += 1;
             // Per-vertex stages run on the executor in fixed runs of
             // vertices; each writes only its own vertices' entries.
@@ -662,6 +666,7 @@ impl<E: Executor> Engine<E> {
                     }
                 });
             ws.is_touched.fill(true);
+            counts.internal_seconds += clock.elapsed().as_secs_f64();
         }
         // Penalty layers, in (layer, key) order.
         let layer_clocks = if internal { &firing[1..] } else { firing };
