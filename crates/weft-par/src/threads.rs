@@ -54,13 +54,7 @@ impl Executor for Threads {
             // One chunk (or none): no one to share it with.
             return weft_sim::Serial.for_each_chunk(data, bounds, task);
         }
-        let mut chunks = Vec::with_capacity(bounds.len().saturating_sub(1));
-        let mut rest = data;
-        for k in 0..bounds.len().saturating_sub(1) {
-            let (chunk, tail) = rest.split_at_mut(bounds[k + 1] - bounds[k]);
-            chunks.push((k, chunk));
-            rest = tail;
-        }
+        let chunks = weft_sim::executor::split_chunks(data, bounds);
         self.pool.install(|| {
             chunks.into_par_iter().for_each(|(k, chunk)| task(k, chunk));
         });

@@ -25,13 +25,7 @@ impl Executor for Scoped {
         bounds: &[usize],
         task: &(dyn Fn(usize, &mut [T]) + Sync),
     ) {
-        let mut chunks = Vec::new();
-        let mut rest = data;
-        for k in 0..bounds.len().saturating_sub(1) {
-            let (chunk, tail) = rest.split_at_mut(bounds[k + 1] - bounds[k]);
-            chunks.push((k, chunk));
-            rest = tail;
-        }
+        let chunks = weft_sim::executor::split_chunks(data, bounds);
         let queue = Mutex::new(chunks.into_iter());
         std::thread::scope(|s| {
             for _ in 0..self.0 {

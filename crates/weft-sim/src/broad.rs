@@ -349,13 +349,7 @@ mod tests {
             bounds: &[usize],
             task: &(dyn Fn(usize, &mut [T]) + Sync),
         ) {
-            let mut chunks = Vec::new();
-            let mut rest = data;
-            for k in 0..bounds.len().saturating_sub(1) {
-                let (chunk, tail) = rest.split_at_mut(bounds[k + 1] - bounds[k]);
-                chunks.push((k, chunk));
-                rest = tail;
-            }
+            let chunks = crate::executor::split_chunks(data, bounds);
             for (k, chunk) in chunks.into_iter().rev() {
                 task(k, chunk);
             }

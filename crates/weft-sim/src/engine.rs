@@ -35,7 +35,7 @@ use crate::clock::{next_multiple_after, Tick};
 use crate::diagnostics::{StageSeconds, WindowStats};
 use crate::dormancy::Dormancy;
 use crate::error::SimError;
-use crate::executor::{Executor, Serial};
+use crate::executor::{split_chunks, Executor, Serial};
 use crate::layers::{penalty_kick, LayerState};
 use crate::state::EngineState;
 use crate::trace;
@@ -201,6 +201,17 @@ struct Workspace {
     /// Bounds of the fixed runs of vertices of the per-vertex stages.
     vertex_runs: Vec<usize>,
     broad: BroadPhase,
+}
+
+impl Workspace {
+    /// Forgets the impulses of an unfinished batch.
+    fn clear_accumulators(&mut self) {
+        self.acc.fill(DVec3::ZERO);
+        self.friction.fill(DVec3::ZERO);
+        self.friction_max.fill(0.0);
+        self.is_touched.fill(false);
+        self.touched.clear();
+    }
 }
 
 /// Totals over a run.
@@ -603,7 +614,9 @@ impl<E: Executor> Engine<E> {
                     // A speculative pass that blew up (typically a stencil
                     // pushed through too few layers): end the pass at `t`,
                     // before any non-finite value was written, and let
-                    // detection decide whether more layers fix it.
+                    // detection decide whether more layers fix it. The
+                    // batch's impulses die with it.
+                    self.ws.clear_accumulators();
                     counts.truncated = Some(e);
                     end = t;
                     break;
@@ -638,7 +651,6 @@ impl<E: Executor> Engine<E> {
         let internal = firing.first() == Some(&0);
         let w = &self.world;
         let ws = &mut self.ws;
-        let n = w.x.len();
         if internal {
             let _span = trace::span("internal tick");
             let clock = Instant::now();
@@ -844,24 +856,26 @@ impl<E: Executor> Engine<E> {
                     }
                 });
         }
-        let world = &mut self.world;
         let window_start = self.traj.start();
-        let mut apply = |i: usize, xt: Option<DVec3>| -> Result<(), SimError> {
+        if internal {
+            return self.apply_internal(t);
+        }
+        // A penalty-only batch: the touched vertices, in order.
+        let world = &mut self.world;
+        let touched = std::mem::take(&mut ws.touched);
+        for &i in &touched {
+            let i = i as usize;
             let v_old = world.v[i];
-            let v_new = if internal {
-                ws.v_new[i]
-            } else {
-                let x = Self::pos_at(world, i, t);
-                let impulse = (ws.acc[i], ws.friction[i], ws.friction_max[i]);
-                new_velocity(world, i, false, x, impulse, tsec, h)
-            };
+            let x = Self::pos_at(world, i, t);
+            let impulse = (ws.acc[i], ws.friction[i], ws.friction_max[i]);
+            let v_new = new_velocity(world, i, false, x, impulse, tsec, h);
             ws.acc[i] = DVec3::ZERO;
             ws.friction[i] = DVec3::ZERO;
             ws.friction_max[i] = 0.0;
             ws.is_touched[i] = false;
             if v_new != v_old {
-                let x = xt.unwrap_or_else(|| Self::pos_at(world, i, t));
                 if !(x.is_finite() && v_new.is_finite()) {
+                    ws.touched = touched;
                     return Err(SimError::NonFinite {
                         place: world.place(i as u32),
                         time: world.lattice.seconds(t),
@@ -870,29 +884,98 @@ impl<E: Executor> Engine<E> {
                 world.x[i] = x;
                 world.tau[i] = t;
                 world.v[i] = v_new;
-                if !internal {
-                    ws.dormancy.wake_vertex(i);
-                }
+                ws.dormancy.wake_vertex(i);
                 self.traj
                     .record(i, t, x)
                     .map_err(|e| budget_error(world, window_start, e))?;
             }
-            Ok(())
-        };
-        if internal {
-            for i in 0..n {
-                apply(i, Some(ws.xt[i]))?;
-            }
-            ws.touched.clear();
-            // Every velocity changed (or may have): every stencil wakes.
-            ws.dormancy.wake_all();
-        } else {
-            let touched = std::mem::take(&mut ws.touched);
-            for &i in &touched {
-                apply(i as usize, None)?;
-            }
-            ws.touched = touched;
-            ws.touched.clear();
+        }
+        ws.touched = touched;
+        ws.touched.clear();
+        Ok(())
+    }
+
+    /// The end of an internal batch at tick `t`, on the executor in runs of
+    /// vertices: each vertex whose velocity changed takes its new velocity
+    /// (`ws.v_new`) and its position at `t`, and gets a breakpoint. As on one
+    /// thread in vertex order, a non-finite new state stops the batch at the
+    /// first such vertex: the vertices before it are applied, it and the
+    /// later ones are not.
+    fn apply_internal(&mut self, t: Tick) -> Result<(), SimError> {
+        let ws = &mut self.ws;
+        let w = &self.world;
+        let n = w.x.len();
+        let runs = ws.vertex_runs.len().saturating_sub(1);
+        let (xt, v_new) = (&ws.xt, &ws.v_new);
+        let bounds = &ws.vertex_runs;
+        let bad = self
+            .exec
+            .map(runs, &|k| {
+                (bounds[k]..bounds[k + 1])
+                    .find(|&i| v_new[i] != w.v[i] && !(xt[i].is_finite() && v_new[i].is_finite()))
+            })
+            .into_iter()
+            .flatten()
+            .next();
+        let limit = bad.unwrap_or(n);
+        struct Run<'a> {
+            start: usize,
+            x: &'a mut [DVec3],
+            v: &'a mut [DVec3],
+            tau: &'a mut [Tick],
+            traj: crate::trajectory::TrajectoryRun<'a>,
+            added: usize,
+        }
+        let world = &mut self.world;
+        let mut x_runs = split_chunks(&mut world.x, bounds).into_iter();
+        let mut v_runs = split_chunks(&mut world.v, bounds).into_iter();
+        let mut tau_runs = split_chunks(&mut world.tau, bounds).into_iter();
+        let mut apply_runs: Vec<Run<'_>> = self
+            .traj
+            .runs(bounds)
+            .into_iter()
+            .enumerate()
+            .map(|(k, traj)| Run {
+                start: bounds[k],
+                x: x_runs.next().expect("one per run").1,
+                v: v_runs.next().expect("one per run").1,
+                tau: tau_runs.next().expect("one per run").1,
+                traj,
+                added: 0,
+            })
+            .collect();
+        let one_each: Vec<usize> = (0..=apply_runs.len()).collect();
+        self.exec
+            .for_each_chunk(&mut apply_runs, &one_each, &|_, chunk| {
+                for r in chunk {
+                    let end = r.x.len().min(limit.saturating_sub(r.start));
+                    for j in 0..end {
+                        let i = r.start + j;
+                        if v_new[i] != r.v[j] {
+                            r.x[j] = xt[i];
+                            r.tau[j] = t;
+                            r.v[j] = v_new[i];
+                            r.added += usize::from(r.traj.record(j, t, xt[i]));
+                        }
+                    }
+                }
+            });
+        let added = apply_runs.iter().map(|r| r.added).sum();
+        drop(apply_runs);
+        // The batch touched every vertex: clear the accumulators (all of
+        // them, also when it stopped early, so nothing leaks into the next
+        // pass); every velocity changed (or may have): every stencil wakes.
+        ws.clear_accumulators();
+        ws.dormancy.wake_all();
+        let world = &self.world;
+        self.traj
+            .add_recorded(added)
+            .map_err(|e| budget_error(world, self.traj.start(), e))?;
+        if let Some(i) = bad {
+            return Err(SimError::NonFinite {
+                place: world.place(i as u32),
+                time: world.lattice.seconds(t),
+            });
         }
         Ok(())
     }

@@ -24,6 +24,19 @@ pub trait Executor: Sync {
     fn name(&self) -> String;
 }
 
+/// `data` cut at `bounds` (ascending; `bounds[0] == 0`, last `== data.len()`)
+/// into numbered disjoint chunks: what [`Executor::for_each_chunk`] hands out.
+pub fn split_chunks<'a, T>(data: &'a mut [T], bounds: &[usize]) -> Vec<(usize, &'a mut [T])> {
+    let mut chunks = Vec::with_capacity(bounds.len().saturating_sub(1));
+    let mut rest = data;
+    for k in 0..bounds.len().saturating_sub(1) {
+        let (chunk, tail) = std::mem::take(&mut rest).split_at_mut(bounds[k + 1] - bounds[k]);
+        chunks.push((k, chunk));
+        rest = tail;
+    }
+    chunks
+}
+
 /// Everything on the calling thread, in order.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Serial;
@@ -35,11 +48,8 @@ impl Executor for Serial {
         bounds: &[usize],
         task: &(dyn Fn(usize, &mut [T]) + Sync),
     ) {
-        let mut rest = data;
-        for k in 0..bounds.len().saturating_sub(1) {
-            let (chunk, tail) = rest.split_at_mut(bounds[k + 1] - bounds[k]);
+        for (k, chunk) in split_chunks(data, bounds) {
             task(k, chunk);
-            rest = tail;
         }
     }
 

@@ -24,6 +24,37 @@ pub struct Trajectories {
     budget: usize,
 }
 
+/// Appends a breakpoint at relative time `rel`; returns whether one was added
+/// (the same instant again — the window end right after a kick — only keeps
+/// the newest position, which equals the previous one bit for bit).
+#[inline]
+fn push_breakpoint(times: &mut Vec<f64>, points: &mut Vec<DVec3>, rel: f64, p: DVec3) -> bool {
+    if times.last() == Some(&rel) {
+        *points.last_mut().expect("non-empty") = p;
+        return false;
+    }
+    times.push(rel);
+    points.push(p);
+    true
+}
+
+/// The trajectories of a run of vertices (see [`Trajectories::runs`]).
+pub struct TrajectoryRun<'a> {
+    start: Tick,
+    times: &'a mut [Vec<f64>],
+    points: &'a mut [Vec<DVec3>],
+}
+
+impl TrajectoryRun<'_> {
+    /// Records that the run's vertex `j` is at `p` at tick `t`; returns
+    /// whether a breakpoint was added.
+    #[inline]
+    pub fn record(&mut self, j: usize, t: Tick, p: DVec3) -> bool {
+        let rel = (t - self.start) as f64;
+        push_breakpoint(&mut self.times[j], &mut self.points[j], rel, p)
+    }
+}
+
 /// The window's breakpoints would exceed the memory budget.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct BudgetExceeded {
@@ -59,16 +90,34 @@ impl Trajectories {
     #[inline]
     pub fn record(&mut self, i: usize, t: Tick, p: DVec3) -> Result<(), BudgetExceeded> {
         let rel = (t - self.start) as f64;
-        let times = &mut self.times[i];
-        if times.last() == Some(&rel) {
-            // Same instant again (e.g. window end right after a kick): keep
-            // the newest position; it equals the previous one bit for bit.
-            *self.points[i].last_mut().expect("non-empty") = p;
-            return Ok(());
+        if push_breakpoint(&mut self.times[i], &mut self.points[i], rel, p) {
+            self.add_recorded(1)?;
         }
-        times.push(rel);
-        self.points[i].push(p);
-        self.total += 1;
+        Ok(())
+    }
+
+    /// The storage of consecutive runs of vertices (cut at `bounds`, as for
+    /// [`crate::Executor::for_each_chunk`]), to record on several threads;
+    /// report what they added with [`Trajectories::add_recorded`].
+    pub fn runs(&mut self, bounds: &[usize]) -> Vec<TrajectoryRun<'_>> {
+        let start = self.start;
+        let times = crate::executor::split_chunks(&mut self.times, bounds);
+        let points = crate::executor::split_chunks(&mut self.points, bounds);
+        times
+            .into_iter()
+            .zip(points)
+            .map(|((_, times), (_, points))| TrajectoryRun {
+                start,
+                times,
+                points,
+            })
+            .collect()
+    }
+
+    /// Counts `n` breakpoints recorded through [`TrajectoryRun`]s against the
+    /// budget.
+    pub fn add_recorded(&mut self, n: usize) -> Result<(), BudgetExceeded> {
+        self.total += n;
         if self.total * BYTES_PER_BREAKPOINT > self.budget {
             return Err(BudgetExceeded {
                 breakpoints: self.total,
