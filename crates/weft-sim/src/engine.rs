@@ -42,25 +42,19 @@ use crate::trace;
 use crate::trajectory::Trajectories;
 use crate::world::World;
 
-/// What a batch knows of one active stencil's distance.
-#[derive(Clone, Copy, Debug)]
-struct StencilCache {
-    /// `tick + 1` of the batch the entry belongs to (0: none).
-    stamp: Tick,
-    /// The closest-point data at that tick, if computed.
-    closest: Option<Closest>,
-    /// A lower bound of the distance at that tick.
-    lower: f64,
-    /// The last exact evaluation in this pass: distance and vertex positions.
-    anchor: Option<(f64, [DVec3; 4])>,
-}
+/// The last exact evaluation of a stencil in this pass: its distance and its
+/// vertices' positions (what [`distance_lower_bound`] starts from).
+type Anchor = (f64, [DVec3; 4]);
 
-const EMPTY_CACHE: StencilCache = StencilCache {
-    stamp: 0,
-    closest: None,
-    lower: f64::NEG_INFINITY,
-    anchor: None,
-};
+/// What the penalty scan decided for an awake stencil (stencils certainly
+/// outside every firing layer without room to sleep leave no verdict).
+#[derive(Clone, Copy, Debug)]
+enum Verdict {
+    /// Certified outside `eta_1` until this tick or a velocity change.
+    Sleep(Tick),
+    /// Evaluated exactly at these positions.
+    Near(Closest, [DVec3; 4]),
+}
 
 /// Lower bound of a stencil's distance at positions `x`, given its exact
 /// distance `d0` at earlier positions `x0` of the same pass.
@@ -185,16 +179,17 @@ struct Workspace {
     friction_max: Vec<f64>,
     touched: Vec<u32>,
     is_touched: Vec<bool>,
-    /// Per active stencil: (tick + 1 of the batch it was computed in, data).
-    closest: Vec<StencilCache>,
+    /// Per active stencil: its anchor, if evaluated in this pass.
+    anchors: Vec<Option<Anchor>>,
     bounds: Vec<usize>,
-    /// Active stencils of a batch that got closest-point data (key order).
-    hits: Vec<u32>,
+    /// Active stencils of a batch evaluated exactly, with their closest
+    /// points (key order).
+    hits: Vec<(u32, Closest)>,
     /// Awake stencils of the batch's outermost firing layer.
     scan: Vec<u32>,
     /// Which active stencils a batch may skip.
     dormancy: Dormancy,
-    /// (layer, active index) of the batch's stencils inside their layer.
+    /// (layer, index in `hits`) of the batch's stencils inside their layer.
     kick_items: Vec<(u32, u32)>,
     /// New velocities of an internal batch.
     v_new: Vec<DVec3>,
@@ -581,8 +576,8 @@ impl<E: Executor> Engine<E> {
                 list.push(a as u32);
             }
         }
-        self.ws.closest.clear();
-        self.ws.closest.resize(active.len(), EMPTY_CACHE);
+        self.ws.anchors.clear();
+        self.ws.anchors.resize(active.len(), None);
         self.ws.dormancy.reset(&active, self.world.x.len());
         let mut batches = 0u64;
         loop {
@@ -707,42 +702,32 @@ impl<E: Executor> Engine<E> {
                     .copied()
                     .filter(|&a| active[a as usize].1 >= first),
             );
-            let closest = &ws.closest;
-            let scan = |run: &[u32]| -> Vec<(u32, StencilCache, Option<Tick>)> {
-                let mut updated = Vec::with_capacity(run.len());
+            let anchors = &ws.anchors;
+            let scan = |run: &[u32]| -> Vec<(u32, Verdict)> {
+                let mut verdicts = Vec::with_capacity(run.len());
                 for &a in run {
                     let key = &active[a as usize].0;
-                    let mut cache = closest[a as usize];
-                    let mut asleep_until = None;
-                    if cache.stamp != t + 1 {
-                        cache.stamp = t + 1;
-                        cache.closest = None;
-                        cache.lower = f64::NEG_INFINITY;
-                    }
                     let x = key.v.map(|i| match xt {
                         Some(xt) => xt[i as usize],
                         None => Self::pos_at(w, i as usize, t),
                     });
-                    if let Some((d0, x0)) = &cache.anchor {
-                        if cache.lower == f64::NEG_INFINITY {
-                            cache.lower = distance_lower_bound(key.kind, *d0, x0, &x);
-                        }
-                    }
+                    let lower = anchors[a as usize]
+                        .as_ref()
+                        .map_or(f64::NEG_INFINITY, |(d0, x0)| {
+                            distance_lower_bound(key.kind, *d0, x0, &x)
+                        });
                     // Certainly outside every firing layer: its kicks are
                     // zero, so skipping the evaluation leaves the same bits.
-                    if cache.lower >= eta_first {
-                        let (awake_at, room) = sleep(key, cache.lower, eta_1, &x, w, t);
+                    if lower >= eta_first {
+                        let (awake_at, room) = sleep(key, lower, eta_1, &x, w, t);
                         if room > 0.0 {
-                            asleep_until = Some(awake_at);
+                            verdicts.push((a, Verdict::Sleep(awake_at)));
                         }
                     } else {
-                        let c = stencil_closest(key.kind, &x);
-                        cache.closest = Some(c);
-                        cache.anchor = Some((c.d, x));
+                        verdicts.push((a, Verdict::Near(stencil_closest(key.kind, &x), x)));
                     }
-                    updated.push((a, cache, asleep_until));
                 }
-                updated
+                verdicts
             };
             let list = &ws.scan;
             let parallel = list.len() >= PARALLEL_MIN_STENCILS;
@@ -750,7 +735,7 @@ impl<E: Executor> Engine<E> {
             // small ones would flood the timeline).
             let closest_span = parallel
                 .then(|| trace::span_with("penalty closest", "stencils", list.len() as u64));
-            let updated: Vec<_> = if parallel {
+            let verdicts: Vec<_> = if parallel {
                 self.exec
                     .map(list.len().div_ceil(PENALTY_RUN), &|r| {
                         scan(&list[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(list.len())])
@@ -762,22 +747,21 @@ impl<E: Executor> Engine<E> {
                 scan(list)
             };
             drop(closest_span);
-            // Write back; only evaluated stencils have closest-point data
-            // (the others are certainly outside every firing layer). The
-            // hits go to phase 2 in key order (active index order).
+            // Apply the verdicts. Only evaluated stencils (the hits) can
+            // kick; they go to phase 2 in key order (active index order).
             ws.hits.clear();
-            for (a, cache, asleep_until) in updated {
-                if let Some(c) = &cache.closest {
-                    counts.min_separation = counts.min_separation.min(c.d);
-                    ws.hits.push(a);
+            for (a, verdict) in verdicts {
+                match verdict {
+                    Verdict::Sleep(until) => ws.dormancy.sleep(a, until),
+                    Verdict::Near(c, x) => {
+                        counts.min_separation = counts.min_separation.min(c.d);
+                        ws.anchors[a as usize] = Some((c.d, x));
+                        ws.hits.push((a, c));
+                    }
                 }
-                if let Some(until) = asleep_until {
-                    ws.dormancy.sleep(a, until);
-                }
-                ws.closest[a as usize] = cache;
             }
             ws.dormancy.drop_sleepers();
-            ws.hits.sort_unstable();
+            ws.hits.sort_unstable_by_key(|h| h.0);
             // Phase 2: the kicks of stencils inside their layer, computed
             // independently (they read the velocities at the start of the
             // batch) and then summed per vertex in (layer, key) order: the
@@ -786,23 +770,21 @@ impl<E: Executor> Engine<E> {
             for &l in layer_clocks {
                 let eta_l = layer_consts[l as usize - 1].0;
                 counts.layer_events += by_layer[l as usize - 1].len() as u64;
-                for &a in &ws.hits {
-                    let inside = active[a as usize].1 >= l
-                        && ws.closest[a as usize].closest.is_some_and(|c| c.d < eta_l);
-                    if inside {
-                        ws.kick_items.push((l, a)); // else a zero kick (NaN too)
+                for (h, (a, c)) in ws.hits.iter().enumerate() {
+                    if active[*a as usize].1 >= l && c.d < eta_l {
+                        ws.kick_items.push((l, h as u32)); // else a zero kick (NaN too)
                     }
                 }
             }
-            let closest = &ws.closest;
-            let kick_of = |&(l, a): &(u32, u32)| {
-                let key = &active[a as usize].0;
+            let hits = &ws.hits;
+            let kick_of = |&(l, h): &(u32, u32)| {
+                let (a, c) = &hits[h as usize];
+                let key = &active[*a as usize].0;
                 let (eta_l, k_l, step) = layer_consts[l as usize - 1];
-                let c = closest[a as usize].closest.expect("inside the layer");
                 let v = key.v.map(|i| w.v[i as usize]);
                 let inv = key.v.map(|i| w.inv_mass[i as usize]);
                 let mu = w.stencil_friction(key);
-                penalty_kick(eta_l, k_l, w.lattice.seconds(step), &c, &v, &inv, mu).map(|k| (k, mu))
+                penalty_kick(eta_l, k_l, w.lattice.seconds(step), c, &v, &inv, mu).map(|k| (k, mu))
             };
             let items = &ws.kick_items;
             let big = items.len() >= PARALLEL_MIN_STENCILS;
@@ -820,9 +802,9 @@ impl<E: Executor> Engine<E> {
             } else {
                 items.iter().map(kick_of).collect()
             };
-            for (&(_, a), kick) in items.iter().zip(kicks) {
+            for (&(_, h), kick) in items.iter().zip(kicks) {
                 let Some((k, mu)) = kick else { continue };
-                let key = &active[a as usize].0;
+                let key = &active[ws.hits[h as usize].0 as usize].0;
                 counts.layer_kicks += 1;
                 for j in 0..4 {
                     let i = key.v[j] as usize;
