@@ -308,6 +308,25 @@ fn stop_after_checkpoints_and_resume_finishes_identically() {
     assert_eq!(m["segments"].as_array().unwrap().len(), 3);
 }
 
+#[test]
+fn a_resume_removes_the_temporaries_of_writes_a_kill_interrupted() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = summary(&fresh_run(dir.path(), None, &["--stop-after", "0"]));
+    assert_eq!(s["complete"], false);
+    // What a process killed between writing and renaming leaves behind.
+    for (folder, name) in [
+        ("", ".checkpoint.wckp.4242.7.tmp"),
+        ("frames", ".frame_00002.ply.4242.8.tmp"),
+        ("frames-vtk", ".frame_00002.vtu.4242.9.tmp"),
+    ] {
+        let d = dir.path().join(folder);
+        std::fs::create_dir_all(&d).unwrap();
+        std::fs::write(d.join(name), b"half a file").unwrap();
+    }
+    let s = summary(&resume(dir.path(), &[]));
+    assert_same_as_reference(dir.path(), &s);
+}
+
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }

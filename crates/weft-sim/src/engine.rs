@@ -36,7 +36,7 @@ use crate::diagnostics::{StageSeconds, WindowStats};
 use crate::dormancy::Dormancy;
 use crate::error::SimError;
 use crate::executor::{split_chunks, Executor, Serial};
-use crate::layers::{penalty_kick, LayerState};
+use crate::layers::{penalty_kick, LayerState, PenaltyImpulse};
 use crate::state::EngineState;
 use crate::trace;
 use crate::trajectory::Trajectories;
@@ -191,6 +191,9 @@ struct Workspace {
     dormancy: Dormancy,
     /// (layer, index in `hits`) of the batch's stencils inside their layer.
     kick_items: Vec<(u32, u32)>,
+    /// The penalty scan's verdicts and the kicks of a batch.
+    verdicts: Vec<(u32, Verdict)>,
+    kicks: Vec<Option<(PenaltyImpulse, f64)>>,
     /// New velocities of an internal batch.
     v_new: Vec<DVec3>,
     /// Bounds of the fixed runs of vertices of the per-vertex stages.
@@ -702,9 +705,12 @@ impl<E: Executor> Engine<E> {
                     .copied()
                     .filter(|&a| active[a as usize].1 >= first),
             );
+            // In key order, so the verdicts and hits come out in key order.
+            ws.scan.sort_unstable();
             let anchors = &ws.anchors;
-            let scan = |run: &[u32]| -> Vec<(u32, Verdict)> {
-                let mut verdicts = Vec::with_capacity(run.len());
+            // (Serial batches fill reused buffers: allocating per batch
+            // scatters the trajectories' storage and slows the narrow phase.)
+            let scan = |run: &[u32], verdicts: &mut Vec<(u32, Verdict)>| {
                 for &a in run {
                     let key = &active[a as usize].0;
                     let x = key.v.map(|i| match xt {
@@ -727,7 +733,6 @@ impl<E: Executor> Engine<E> {
                         verdicts.push((a, Verdict::Near(stencil_closest(key.kind, &x), x)));
                     }
                 }
-                verdicts
             };
             let list = &ws.scan;
             let parallel = list.len() >= PARALLEL_MIN_STENCILS;
@@ -735,22 +740,26 @@ impl<E: Executor> Engine<E> {
             // small ones would flood the timeline).
             let closest_span = parallel
                 .then(|| trace::span_with("penalty closest", "stencils", list.len() as u64));
-            let verdicts: Vec<_> = if parallel {
-                self.exec
-                    .map(list.len().div_ceil(PENALTY_RUN), &|r| {
-                        scan(&list[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(list.len())])
-                    })
-                    .into_iter()
-                    .flatten()
-                    .collect()
+            ws.verdicts.clear();
+            if parallel {
+                let parts = self.exec.map(list.len().div_ceil(PENALTY_RUN), &|r| {
+                    let mut verdicts = Vec::new();
+                    let run = &list[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(list.len())];
+                    scan(run, &mut verdicts);
+                    verdicts
+                });
+                for part in parts {
+                    ws.verdicts.extend(part);
+                }
             } else {
-                scan(list)
-            };
+                scan(list, &mut ws.verdicts);
+            }
             drop(closest_span);
             // Apply the verdicts. Only evaluated stencils (the hits) can
-            // kick; they go to phase 2 in key order (active index order).
+            // kick; they go to phase 2 in key order (active index order, the
+            // order of the scan list).
             ws.hits.clear();
-            for (a, verdict) in verdicts {
+            for &(a, verdict) in &ws.verdicts {
                 match verdict {
                     Verdict::Sleep(until) => ws.dormancy.sleep(a, until),
                     Verdict::Near(c, x) => {
@@ -761,7 +770,6 @@ impl<E: Executor> Engine<E> {
                 }
             }
             ws.dormancy.drop_sleepers();
-            ws.hits.sort_unstable_by_key(|h| h.0);
             // Phase 2: the kicks of stencils inside their layer, computed
             // independently (they read the velocities at the start of the
             // batch) and then summed per vertex in (layer, key) order: the
@@ -790,20 +798,20 @@ impl<E: Executor> Engine<E> {
             let big = items.len() >= PARALLEL_MIN_STENCILS;
             let _kicks_span =
                 big.then(|| trace::span_with("penalty kicks", "stencils", items.len() as u64));
-            let kicks: Vec<_> = if big {
-                self.exec
-                    .map(items.len().div_ceil(PENALTY_RUN), &|r| {
-                        let run = &items[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(items.len())];
-                        run.iter().map(kick_of).collect::<Vec<_>>()
-                    })
-                    .into_iter()
-                    .flatten()
-                    .collect()
+            ws.kicks.clear();
+            if big {
+                let parts = self.exec.map(items.len().div_ceil(PENALTY_RUN), &|r| {
+                    let run = &items[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(items.len())];
+                    run.iter().map(kick_of).collect::<Vec<_>>()
+                });
+                for part in parts {
+                    ws.kicks.extend(part);
+                }
             } else {
-                items.iter().map(kick_of).collect()
-            };
-            for (&(_, h), kick) in items.iter().zip(kicks) {
-                let Some((k, mu)) = kick else { continue };
+                ws.kicks.extend(items.iter().map(kick_of));
+            }
+            for (&(_, h), kick) in items.iter().zip(&ws.kicks) {
+                let &Some((k, mu)) = kick else { continue };
                 let key = &active[ws.hits[h as usize].0 as usize].0;
                 counts.layer_kicks += 1;
                 for j in 0..4 {

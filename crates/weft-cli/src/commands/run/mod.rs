@@ -514,15 +514,20 @@ impl Saver<'_> {
     }
 }
 
-/// Removes temporary checkpoint files a crashed process left behind (the
-/// write never reached its rename, so the checkpoint itself is the previous one).
+/// Removes the temporary files a killed process left behind: a checkpoint or
+/// frame whose write never reached its rename (the checkpoint is then the
+/// previous one, and the frame is written again after the resume).
 fn remove_abandoned_temporaries(out: &Path) {
-    let prefix = format!(".{CHECKPOINT_FILE}.");
-    if let Ok(entries) = std::fs::read_dir(out) {
+    // Atomic writes go through `.NAME.PID.N.tmp` beside their target: a run
+    // killed mid-write leaves one behind in the folder or a frame folder.
+    for dir in ["", "frames", "frames-obj", "frames-vtk"] {
+        let Ok(entries) = std::fs::read_dir(out.join(dir)) else {
+            continue;
+        };
         for e in entries.flatten() {
             let name = e.file_name();
             let name = name.to_string_lossy();
-            if name.starts_with(&prefix) && name.ends_with(".tmp") {
+            if name.starts_with('.') && name.ends_with(".tmp") {
                 let _ = std::fs::remove_file(e.path());
             }
         }
