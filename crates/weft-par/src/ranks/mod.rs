@@ -3,8 +3,8 @@
 //!
 //! | module | what |
 //! |---|---|
-//! | [`plan`] | partition placement, owned / ghost vertices, boundary and interior partitions, who sends what |
-//! | [`internal`] | internal-force ticks over ranks: ghost exchange overlapped with interior work, slot exchange, ordered folds |
+//! | [`mod@plan`] | partition placement, owned / ghost vertices, boundary and interior partitions, who sends what |
+//! | [`mod@internal`] | internal-force ticks over ranks: ghost exchange overlapped with interior work, slot exchange, ordered folds |
 
 pub mod internal;
 pub mod plan;

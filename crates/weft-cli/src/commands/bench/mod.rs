@@ -47,12 +47,12 @@ pub struct BenchArgs {
     /// About N cloth vertices (`--set size=N`).
     #[arg(long, value_name = "N")]
     pub size: Option<u64>,
-    /// The checkpoint to start from [default: bench/<scene>-<size>.wckp]. It must
+    /// The checkpoint to start from [default: bench/SCENE-SIZE.wckp]. It must
     /// come from the same scene, size and overrides.
     #[arg(long, value_name = "FILE")]
     pub checkpoint: Option<PathBuf>,
     /// Make the checkpoint first: run the scene from the start to --warmup in the
-    /// folder <checkpoint without extension>.warmup/ and copy its checkpoint.
+    /// folder CHECKPOINT.warmup/ (CHECKPOINT without its extension) and copy its checkpoint.
     #[arg(long)]
     pub make_checkpoint: bool,
     /// Simulated seconds the --make-checkpoint run covers (rounded up to a whole
