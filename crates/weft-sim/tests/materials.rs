@@ -6,8 +6,8 @@ use glam::{DQuat, DVec3};
 use std::f64::consts::PI;
 use weft_core::Topology;
 use weft_sim::materials::{
-    check_damping, damping_step_limit, dihedral_angle, lumped_masses, stable_step, ElasticModel,
-    HingeElement, Material, MaterialError, StretchElement,
+    check_damping, damping_step_limit, dihedral_angle, lumped_masses, stable_step, HingeElement,
+    Material, MaterialError, StretchElement,
 };
 use weft_testkit::{assert_gradient, check_gradient, Rng};
 
@@ -66,52 +66,38 @@ fn grid(nx: usize, ny: usize, lx: f64, ly: f64) -> (Vec<DVec3>, Vec<[u32; 3]>) {
     (x, t)
 }
 
-/// Owned element sets of a mesh with one material.
-struct Model {
-    stretch: Vec<StretchElement>,
-    stretch_material: Vec<u16>,
-    hinges: Vec<HingeElement>,
-    hinge_material: Vec<u16>,
-    materials: Vec<Material>,
+/// Owned element sets of a mesh with one material (the engine's key-ordered
+/// copy of its elements has exactly these fields).
+type Model = weft_sim::internal::KeyOrdered;
+
+fn build_model(rest: &[DVec3], triangles: &[[u32; 3]], m: Material) -> Model {
+    let topo = Topology::build(rest.len(), triangles).unwrap();
+    let stretch: Vec<StretchElement> = triangles
+        .iter()
+        .map(|t| StretchElement::new(*t, t.map(|i| rest[i as usize])).unwrap())
+        .collect();
+    let hinges: Vec<HingeElement> = topo
+        .hinges
+        .iter()
+        .map(|h| {
+            let v = [h.edge[0], h.edge[1], h.wings[0], h.wings[1]];
+            HingeElement::new(v, v.map(|i| rest[i as usize])).unwrap()
+        })
+        .collect();
+    Model {
+        stretch_material: vec![0; stretch.len()],
+        hinge_material: vec![0; hinges.len()],
+        stretch,
+        hinges,
+        materials: vec![m],
+    }
 }
 
-impl Model {
-    fn build(rest: &[DVec3], triangles: &[[u32; 3]], m: Material) -> Self {
-        let topo = Topology::build(rest.len(), triangles).unwrap();
-        let stretch: Vec<StretchElement> = triangles
-            .iter()
-            .map(|t| StretchElement::new(*t, t.map(|i| rest[i as usize])).unwrap())
-            .collect();
-        let hinges: Vec<HingeElement> = topo
-            .hinges
-            .iter()
-            .map(|h| {
-                let v = [h.edge[0], h.edge[1], h.wings[0], h.wings[1]];
-                HingeElement::new(v, v.map(|i| rest[i as usize])).unwrap()
-            })
-            .collect();
-        Self {
-            stretch_material: vec![0; stretch.len()],
-            hinge_material: vec![0; hinges.len()],
-            stretch,
-            hinges,
-            materials: vec![m],
-        }
-    }
-    fn view(&self) -> ElasticModel<'_> {
-        ElasticModel {
-            stretch: &self.stretch,
-            stretch_material: &self.stretch_material,
-            hinges: &self.hinges,
-            hinge_material: &self.hinge_material,
-            materials: &self.materials,
-        }
-    }
-    fn gradient(&self, x: &[DVec3]) -> Vec<DVec3> {
-        let mut g = vec![DVec3::ZERO; x.len()];
-        self.view().add_gradient(x, &mut g);
-        g
-    }
+/// The assembled elastic gradient of `model` at `x`.
+fn gradient(model: &Model, x: &[DVec3]) -> Vec<DVec3> {
+    let mut g = vec![DVec3::ZERO; x.len()];
+    model.model().add_gradient(x, &mut g);
+    g
 }
 
 // ---------------------------------------------------------------- stretch
@@ -405,16 +391,16 @@ fn damping_is_stiffness_proportional_at_rest() {
     for (i, p) in rest.iter_mut().enumerate() {
         p.z = 0.002 * ((i * 7 % 5) as f64 - 2.0); // curved rest: bending is loaded
     }
-    let model = Model::build(&rest, &t, m);
+    let model = build_model(&rest, &t, m);
     let mut rng = Rng(6);
     let v: Vec<DVec3> = rest.iter().map(|_| rng.vec(1.0)).collect();
     let mut f = vec![DVec3::ZERO; rest.len()];
-    model.view().add_damping_force(&rest, &v, &mut f);
+    model.model().add_damping_force(&rest, &v, &mut f);
     // K v by central differences, stretch and bend share alpha = 1e-4 here.
     let eps = 1e-8;
     let xp: Vec<DVec3> = rest.iter().zip(&v).map(|(p, d)| *p + *d * eps).collect();
     let xm: Vec<DVec3> = rest.iter().zip(&v).map(|(p, d)| *p - *d * eps).collect();
-    let (gp, gm) = (model.gradient(&xp), model.gradient(&xm));
+    let (gp, gm) = (gradient(&model, &xp), gradient(&model, &xm));
     let scale = max_norm(&f);
     for i in 0..rest.len() {
         let kv = (gp[i] - gm[i]) / (2.0 * eps);
@@ -448,7 +434,7 @@ fn uniaxial_stretch_recovers_youngs_modulus_and_poisson_ratio() {
                 p.y += rng.uniform(-0.005, 0.005);
             }
         }
-        let model = Model::build(&rest, &t, m);
+        let model = build_model(&rest, &t, m);
         let ex = 1e-4;
         // dU/d(eps_x) and dU/d(eps_y) from the assembled gradient.
         let derivs = |ey: f64| {
@@ -456,7 +442,7 @@ fn uniaxial_stretch_recovers_youngs_modulus_and_poisson_ratio() {
                 .iter()
                 .map(|p| DVec3::new(p.x * (1.0 + ex), p.y * (1.0 + ey), 0.0))
                 .collect();
-            let g = model.gradient(&x);
+            let g = gradient(&model, &x);
             let dx: f64 = g.iter().zip(&rest).map(|(g, p)| g.x * p.x).sum();
             let dy: f64 = g.iter().zip(&rest).map(|(g, p)| g.y * p.y).sum();
             (dx, dy)
@@ -536,7 +522,7 @@ fn bent_strip_matches_plate_bending_energy() {
         meshes.push((x, t, s));
     }
     for (k, (rest, t, s)) in meshes.into_iter().enumerate() {
-        let model = Model::build(&rest, &t, m);
+        let model = build_model(&rest, &t, m);
         let bent: Vec<DVec3> = rest
             .iter()
             .map(|p| {
@@ -646,7 +632,7 @@ fn dense_scaled_stiffness(model: &Model, rest: &[DVec3], mass: &[f64]) -> Vec<Ve
         let (mut xp, mut xm) = (rest.to_vec(), rest.to_vec());
         xp[col / 3][col % 3] += h;
         xm[col / 3][col % 3] -= h;
-        let (gp, gm) = (model.gradient(&xp), model.gradient(&xm));
+        let (gp, gm) = (gradient(model, &xp), gradient(model, &xm));
         for row in 0..n {
             k[row][col] = (gp[row / 3][row % 3] - gm[row / 3][row % 3])
                 / (2.0 * h)
@@ -688,13 +674,13 @@ fn max_frequency_matches_dense_eigenvalues() {
                 p.z = 0.003 * rng.uniform(-1.0, 1.0);
             }
         }
-        let model = Model::build(&rest, &t, m);
+        let model = build_model(&rest, &t, m);
         let mass = lumped_masses(rest.len(), &t, &rest, &vec![m.area_density; t.len()]);
         let exact = jacobi_eigenvalues(dense_scaled_stiffness(&model, &rest, &mass))
             .into_iter()
             .fold(0.0f64, f64::max)
             .sqrt();
-        let view = model.view();
+        let view = model.model();
         let omega = view.max_frequency(&rest, &mass);
         let bound = view.gershgorin_bound(&rest, &mass);
         assert!(
@@ -721,9 +707,9 @@ fn damping_step_limit_separates_stable_from_unstable() {
         ..cloth()
     };
     let (rest, t) = grid(3, 3, 0.02, 0.02);
-    let model = Model::build(&rest, &t, m);
+    let model = build_model(&rest, &t, m);
     let mass = lumped_masses(rest.len(), &t, &rest, &vec![m.area_density; t.len()]);
-    let view = model.view();
+    let view = model.model();
     let omega = view.max_frequency(&rest, &mass);
     let gamma = view.max_damping_rate(&rest, &mass);
     // Stiffness-proportional: gamma = alpha omega².
@@ -780,7 +766,7 @@ fn a_model_without_elements_has_no_frequency() {
         hinge_material: vec![],
         materials: vec![cloth()],
     };
-    let omega = model.view().max_frequency(&[DVec3::ZERO; 3], &[1.0; 3]);
+    let omega = model.model().max_frequency(&[DVec3::ZERO; 3], &[1.0; 3]);
     assert_eq!(omega, 0.0);
     assert_eq!(stable_step(omega, 0.3), f64::INFINITY);
 }
