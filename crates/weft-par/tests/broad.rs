@@ -81,38 +81,3 @@ fn threads_match_serial() {
         }
     }
 }
-
-/// Wall time of the broad phase on a 50k-triangle folded grid, `Serial` against
-/// `Threads(1)` and `Threads(2)`:
-/// `cargo test --release -p weft-par --test broad -- --ignored --nocapture`.
-#[test]
-#[ignore = "timing"]
-fn timing_serial_vs_threads() {
-    let (tris, inv_mass, traj) = folded(160, 3);
-    let inflate = 0.25 / 159.0;
-    let time = |name: &str, run: &mut dyn FnMut() -> Vec<weft_core::StencilKey>| {
-        let n = run().len();
-        let mut best = f64::INFINITY;
-        for _ in 0..9 {
-            let t = std::time::Instant::now();
-            assert_eq!(run().len(), n);
-            best = best.min(t.elapsed().as_secs_f64());
-        }
-        println!(
-            "{name:>10}: {:7.2} ms ({} triangles, {n} candidates)",
-            best * 1e3,
-            tris.len()
-        );
-    };
-    let mut bp = BroadPhase::default();
-    time("serial", &mut || {
-        bp.candidates_on(&Serial, &tris, &inv_mass, &traj, inflate)
-    });
-    for threads in [1, 2] {
-        let exec = Threads::new(threads).unwrap();
-        let mut bp = BroadPhase::default();
-        time(&format!("threads({threads})"), &mut || {
-            bp.candidates_on(&exec, &tris, &inv_mass, &traj, inflate)
-        });
-    }
-}

@@ -1,7 +1,7 @@
 //! Broad-phase wall time on a folded 50k-triangle grid with trajectories:
 //! `Serial` against a small scoped-thread executor with 1 and 2 threads
-//! (weft-sim cannot use weft-par's `Threads`; `weft-par/tests/broad.rs` has an
-//! ignored timing test on the real one).
+//! (weft-sim cannot use weft-par's `Threads`; `weft bench` times the real one
+//! inside whole windows).
 //!
 //! `cargo bench -p weft-sim --bench broad`
 
