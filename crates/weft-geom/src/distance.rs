@@ -64,7 +64,7 @@ use weft_core::{DVec3, StencilKind};
 /// primitive to the first, and `coeff` the coefficients with
 /// `dd/dx_j = coeff[j] * n` (barycentric weights held fixed). See the module
 /// documentation for the per-kind layout.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Closest {
     /// unsigned distance between the two primitives (`>= 0`, finite for finite input).
     pub d: f64,

@@ -18,4 +18,5 @@ pub mod ranks;
 pub mod threads;
 
 pub use metis::{build_world, Metis};
+pub use ranks::Ranks;
 pub use threads::Threads;

@@ -50,6 +50,11 @@ impl Partitioner for Metis {
             .collect::<Result<_, _>>()?;
         let parts = Idx::try_from(input.parts).map_err(too_big)?;
         let mut part: Vec<Idx> = vec![0; cloth.len()];
+        // METIS's random generator is process-global state: two calls at once
+        // (ranks on threads, tests in one process) perturb each other's parts.
+        // One call at a time makes the same parts for the same graph.
+        static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+        let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
         Graph::new(1, parts, &xadj, &adjncy)
             .map_err(|e| format!("METIS refused the dual graph: {e}"))?
             .set_option(metis::option::Seed(1))

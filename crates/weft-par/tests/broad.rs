@@ -6,7 +6,7 @@ use weft_core::DVec3;
 use weft_par::Threads;
 use weft_sim::broad::BroadPhase;
 use weft_sim::trajectory::Trajectories;
-use weft_sim::Serial;
+use weft_sim::{Executor, Serial};
 
 /// splitmix64 in `[-r, r)^3`.
 fn noise(state: &mut u64, r: f64) -> DVec3 {
@@ -64,7 +64,9 @@ fn threads_match_serial() {
     let (tris, inv_mass, traj) = folded(120, 2);
     let h = 1.0 / 119.0;
     let mut serial = BroadPhase::default();
-    let expected = serial.candidates_on(&Serial, &tris, &inv_mass, &traj, 0.3 * h);
+    let expected = serial
+        .candidates_on(&Serial, &tris, &inv_mass, &traj, 0.3 * h)
+        .unwrap();
     assert!(expected.len() > 10_000, "{} candidates", expected.len());
     assert!(
         expected.windows(2).all(|w| w[0] < w[1]),
@@ -75,9 +77,32 @@ fn threads_match_serial() {
         let mut bp = BroadPhase::default();
         for round in 0..2 {
             // the second round refits the tree and reuses every buffer
-            let got = bp.candidates_on(&exec, &tris, &inv_mass, &traj, 0.3 * h);
+            let got = bp
+                .candidates_on(&exec, &tris, &inv_mass, &traj, 0.3 * h)
+                .unwrap();
             assert_eq!(got, expected, "{threads} threads, round {round}");
             assert_eq!(bp.last_pairs, serial.last_pairs);
+        }
+    }
+}
+
+#[test]
+fn ranks_match_serial() {
+    let (tris, inv_mass, traj) = folded(60, 2);
+    let h = 1.0 / 59.0;
+    let expected = BroadPhase::default().candidates(&tris, &inv_mass, &traj, 0.3 * h);
+    assert!(expected.len() > 1_000, "{} candidates", expected.len());
+    for ranks in 1..=3 {
+        let got = weft_par::ranks::in_process(ranks, |_| Serial, |exec| {
+            let mut bp = BroadPhase::default();
+            let keys = bp
+                .candidates_on(&exec, &tris, &inv_mass, &traj, 0.3 * h)
+                .unwrap();
+            (keys, exec.traffic().messages)
+        });
+        for (rank, (keys, messages)) in got.into_iter().enumerate() {
+            assert_eq!(keys, expected, "rank {rank} of {ranks}");
+            assert_eq!(messages > 0, ranks > 1, "rank {rank} of {ranks}");
         }
     }
 }

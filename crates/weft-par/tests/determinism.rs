@@ -1,6 +1,8 @@
 //! The same bits on any executor and partitioning: `crumple` (friction and
-//! damping on) run on `Serial` and on `Threads` with 1 to 4 threads, with 1,
-//! 4, 16 and 64 METIS partitions, ends in one `state_hash` — with enough
+//! damping on) run on `Serial`, on `Threads` with 1 to 4 threads and on
+//! `Ranks` with 1 to 4 ranks (threads with memory of their own, talking over
+//! channels), with 1, 4, 16 and 64 METIS partitions, ends in one
+//! `state_hash` on every rank — with enough
 //! contact to mean it (asserted: rollbacks, peak active stencils, depth, and
 //! penalty stencils that couple two partitions).
 //!
@@ -11,6 +13,7 @@
 use std::path::Path;
 
 use weft_io::scene::load_scene;
+use weft_par::ranks::in_process;
 use weft_par::Threads;
 use weft_sim::{Engine, Executor, Serial};
 
@@ -25,6 +28,8 @@ struct Outcome {
     /// Active penalty stencils coupling two partitions, and all of them, at
     /// the window with the most active stencils.
     spanning_at_peak: (usize, usize),
+    /// Messages this rank sent to others.
+    messages: u64,
 }
 
 fn run<E: Executor>(exec: E, partitions: usize) -> Outcome {
@@ -60,6 +65,7 @@ fn run<E: Executor>(exec: E, partitions: usize) -> Outcome {
         max_depth: e.totals.max_depth,
         peak_active: e.totals.max_active_stencils,
         spanning_at_peak,
+        messages: e.executor().traffic().messages,
     }
 }
 
@@ -93,6 +99,21 @@ fn all_executors_agree(partitions: usize) {
     for threads in [1, 2, 3, 4] {
         let o = run(Threads::new(threads).unwrap(), partitions);
         assert_eq!(o.hash, FIXTURE_HASH, "threads = {threads}, {label}");
+    }
+    // Ranks with one thread each, and two ranks of two threads.
+    let rows = [(1, 1), (2, 1), (3, 1), (4, 1), (2, 2)];
+    for (ranks, threads) in rows {
+        let local = |_| Threads::new(threads).unwrap();
+        let outcomes = in_process(ranks, local, |exec| run(exec, partitions));
+        for (rank, o) in outcomes.iter().enumerate() {
+            assert_eq!(
+                o.hash, FIXTURE_HASH,
+                "rank {rank} of {ranks} ({threads} threads each), {label}"
+            );
+            assert_eq!(o.rollbacks, reference.rollbacks, "rank {rank} of {ranks}");
+            // Each rank computed its share and received the others'.
+            assert_eq!(o.messages > 0, ranks > 1, "rank {rank} of {ranks}");
+        }
     }
 }
 

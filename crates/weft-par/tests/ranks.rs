@@ -29,7 +29,9 @@ fn reference(w: &World, ticks: usize) -> (Vec<DVec3>, Vec<DVec3>) {
         .filter(|&i| w.partitioning.of_vertex[i] != weft_core::NONE)
         .collect();
     for _ in 0..ticks {
-        w.internal.evaluate(&Serial, &bounds, &x, &v, &mut out);
+        w.internal
+            .evaluate(&Serial, &bounds, &x, &v, &mut out)
+            .unwrap();
         for &i in &cloth {
             let f = w.internal.fold(i, &out);
             advance(w, i, f, &mut x[i], &mut v[i], h);

@@ -42,7 +42,7 @@ use weft_core::{StencilKey, StencilKind};
 use weft_geom::bvh::Bvh;
 use weft_geom::dop::Dop26;
 
-use crate::executor::{Executor, Serial};
+use crate::executor::{CommError, Executor, Serial};
 use crate::trajectory::Trajectories;
 
 /// Vertices (or triangles) per DOP task.
@@ -70,7 +70,7 @@ pub struct BroadPhase {
 }
 
 /// What one traversal task found.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct TaskOut {
     /// its filtered stencil keys, sorted and deduplicated.
     keys: Vec<StencilKey>,
@@ -89,10 +89,14 @@ impl BroadPhase {
         inflate: f64,
     ) -> Vec<StencilKey> {
         self.candidates_on(&Serial, triangles, inv_mass, traj, inflate)
+            .expect("one memory: no rank to lose")
     }
 
     /// Candidate stencils of the window whose trajectories are `traj`, computed
     /// on `exec`: sorted, deduplicated, the same on every executor.
+    ///
+    /// The DOPs and the tree are computed on every rank; the traversal tasks
+    /// are spread over the ranks ([`Executor::chunks_on_ranks`]).
     pub fn candidates_on<E: Executor>(
         &mut self,
         exec: &E,
@@ -100,7 +104,7 @@ impl BroadPhase {
         inv_mass: &[f64],
         traj: &Trajectories,
         inflate: f64,
-    ) -> Vec<StencilKey> {
+    ) -> Result<Vec<StencilKey>, CommError> {
         let Self {
             vertex_dops,
             tri_dops,
@@ -164,7 +168,7 @@ impl BroadPhase {
             inflate,
             exact_unions: !vd.iter().any(|d| d[0].is_empty()),
         };
-        exec.for_each_chunk(&mut outs[..n], bounds, &|k, chunk: &mut [TaskOut]| {
+        exec.chunks_on_ranks(&mut outs[..n], bounds, &|k, chunk: &mut [TaskOut]| {
             let out = &mut chunk[0];
             out.keys.clear();
             out.pairs = 0;
@@ -174,7 +178,7 @@ impl BroadPhase {
             });
             out.keys.sort_unstable();
             out.keys.dedup();
-        });
+        })?;
 
         *last_pairs = outs[..n].iter().map(|o| o.pairs).sum();
         let mut keys = Vec::with_capacity(outs[..n].iter().map(|o| o.keys.len()).sum());
@@ -184,7 +188,7 @@ impl BroadPhase {
         // Concatenated sorted runs: the stable sort merges them.
         keys.sort();
         keys.dedup();
-        keys
+        Ok(keys)
     }
 }
 
@@ -464,7 +468,9 @@ mod tests {
             // a fresh workspace, then one reused with another mesh's buffers in it
             let mut reused = BroadPhase::default();
             let (t2, m2, tr2) = crumpled(seed + 100, 9, 2);
-            reused.candidates_on(&Backwards, &t2, &m2, &tr2, inflate);
+            reused
+                .candidates_on(&Backwards, &t2, &m2, &tr2, inflate)
+                .unwrap();
             for (name, got, bp) in [
                 {
                     let mut bp = BroadPhase::default();
@@ -473,11 +479,15 @@ mod tests {
                 },
                 {
                     let mut bp = BroadPhase::default();
-                    let got = bp.candidates_on(&Backwards, &tris, &inv_mass, &traj, inflate);
+                    let got = bp
+                        .candidates_on(&Backwards, &tris, &inv_mass, &traj, inflate)
+                        .unwrap();
                     ("backwards", got, bp)
                 },
                 {
-                    let got = reused.candidates_on(&Backwards, &tris, &inv_mass, &traj, inflate);
+                    let got = reused
+                        .candidates_on(&Backwards, &tris, &inv_mass, &traj, inflate)
+                        .unwrap();
                     ("reused", got, reused.clone())
                 },
             ] {
@@ -489,7 +499,8 @@ mod tests {
             let mut bp = BroadPhase::default();
             bp.candidates(&tris, &inv_mass, &traj, inflate);
             assert_eq!(
-                bp.candidates_on(&Backwards, &tris, &inv_mass, &moved, inflate),
+                bp.candidates_on(&Backwards, &tris, &inv_mass, &moved, inflate)
+                    .unwrap(),
                 brute_force(&tris, &inv_mass, &moved, inflate).0
             );
         }
@@ -507,7 +518,8 @@ mod tests {
             assert!(!expected.is_empty());
             let mut bp = BroadPhase::default();
             assert_eq!(
-                bp.candidates_on(&Backwards, &tris, &inv_mass, &traj, inflate),
+                bp.candidates_on(&Backwards, &tris, &inv_mass, &traj, inflate)
+                    .unwrap(),
                 expected
             );
             assert_eq!(bp.last_pairs, pairs);
@@ -520,6 +532,7 @@ mod tests {
         let mut bp = BroadPhase::default();
         assert!(bp
             .candidates_on(&Backwards, &[], &[], &traj, 0.1)
+            .unwrap()
             .is_empty());
         assert_eq!(bp.last_pairs, 0);
     }

@@ -29,13 +29,13 @@ use weft_core::{StencilKey, StencilKind};
 use weft_geom::ccd::{proximity, CcdStats};
 use weft_geom::distance::{stencil_closest, Closest};
 
-use crate::balance::{CollisionTasks, CostModel};
+use crate::balance::{locality_aware, CollisionTasks, CostModel};
 use crate::broad::BroadPhase;
 use crate::clock::{next_multiple_after, Tick};
 use crate::diagnostics::{StageSeconds, WindowStats};
 use crate::dormancy::Dormancy;
 use crate::error::SimError;
-use crate::executor::{split_chunks, Executor, Serial};
+use crate::executor::{place_in_blocks, split_chunks, CommError, Executor, Serial};
 use crate::layers::{penalty_kick, LayerState, PenaltyImpulse};
 use crate::state::EngineState;
 use crate::trace;
@@ -48,7 +48,7 @@ type Anchor = (f64, [DVec3; 4]);
 
 /// What the penalty scan decided for an awake stencil (stencils certainly
 /// outside every firing layer without room to sleep leave no verdict).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 enum Verdict {
     /// Certified outside `eta_1` until this tick or a velocity change.
     Sleep(Tick),
@@ -360,7 +360,7 @@ impl<E: Executor> Engine<E> {
             &w.inv_mass,
             &self.traj,
             0.5 * w.schedule.eta_1,
-        );
+        )?;
         for key in keys {
             let x = key.v.map(|i| w.x[i as usize]);
             let c = stencil_closest(key.kind, &x);
@@ -464,8 +464,15 @@ impl<E: Executor> Engine<E> {
             drop(broad_span);
             stages.broad += clock.elapsed().as_secs_f64();
             let clock = Instant::now();
-            let narrow_span = trace::span_with("narrow", "candidates", candidates.len() as u64);
-            let reported = self.narrow_phase(&candidates);
+            let narrow_span = trace::span("narrow");
+            let found = candidates.and_then(|c| Ok((self.narrow_phase(&c)?, c)));
+            let (reported, candidates) = match found {
+                Ok(found) => found,
+                Err(e) => {
+                    snap.restore(&mut self.world);
+                    return Err(e.into());
+                }
+            };
             drop(narrow_span);
             stages.narrow += clock.elapsed().as_secs_f64();
             if reported.is_empty() {
@@ -476,7 +483,13 @@ impl<E: Executor> Engine<E> {
                 }
                 let clock = Instant::now();
                 let _commit_span = trace::span("commit");
-                let retired = self.commit(&candidates);
+                let retired = match self.commit(&candidates) {
+                    Ok(retired) => retired,
+                    Err(e) => {
+                        snap.restore(&mut self.world);
+                        return Err(e.into());
+                    }
+                };
                 self.world.tick = t1;
                 let mut stats = self.window_stats(
                     counts,
@@ -662,7 +675,7 @@ impl<E: Executor> Engine<E> {
                     }
                 });
             w.internal
-                .evaluate(&self.exec, &ws.bounds, &ws.xt, &w.v, &mut ws.out);
+                .evaluate(&self.exec, &ws.bounds, &ws.xt, &w.v, &mut ws.out)?;
             let h = w.lattice.h_el();
             let out = &ws.out;
             self.exec
@@ -742,12 +755,14 @@ impl<E: Executor> Engine<E> {
                 .then(|| trace::span_with("penalty closest", "stencils", list.len() as u64));
             ws.verdicts.clear();
             if parallel {
-                let parts = self.exec.map(list.len().div_ceil(PENALTY_RUN), &|r| {
+                let runs = list.len().div_ceil(PENALTY_RUN);
+                let owner = place_in_blocks(runs, self.exec.ranks());
+                let parts = self.exec.map_on_ranks(runs, &owner, &|r| {
                     let mut verdicts = Vec::new();
                     let run = &list[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(list.len())];
                     scan(run, &mut verdicts);
                     verdicts
-                });
+                })?;
                 for part in parts {
                     ws.verdicts.extend(part);
                 }
@@ -800,10 +815,12 @@ impl<E: Executor> Engine<E> {
                 big.then(|| trace::span_with("penalty kicks", "stencils", items.len() as u64));
             ws.kicks.clear();
             if big {
-                let parts = self.exec.map(items.len().div_ceil(PENALTY_RUN), &|r| {
+                let runs = items.len().div_ceil(PENALTY_RUN);
+                let owner = place_in_blocks(runs, self.exec.ranks());
+                let parts = self.exec.map_on_ranks(runs, &owner, &|r| {
                     let run = &items[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(items.len())];
                     run.iter().map(kick_of).collect::<Vec<_>>()
-                });
+                })?;
                 for part in parts {
                     ws.kicks.extend(part);
                 }
@@ -977,14 +994,30 @@ impl<E: Executor> Engine<E> {
     /// cost is predicted from the previous pass ([`crate::balance`]); the
     /// executor gets them largest first. Each candidate is tested once and
     /// the answers are sorted, so the result does not depend on the tasks.
-    fn narrow_phase(&mut self, candidates: &[StencilKey]) -> Vec<StencilKey> {
+    ///
+    /// Over ranks, the tasks are placed by the paper's Algorithm 2
+    /// ([`crate::balance::locality_aware`]: home rank first while under the
+    /// average load) and every rank gets every answer.
+    fn narrow_phase(&mut self, candidates: &[StencilKey]) -> Result<Vec<StencilKey>, CommError> {
         const TASK: f64 = 64.0;
         let w = &self.world;
         let traj = &self.traj;
         let costs = &mut self.narrow_costs;
         let tasks = CollisionTasks::build(candidates, &w.partitioning, costs, TASK * costs.mean());
         let order = tasks.by_load();
-        let answers = self.exec.map(order.len(), &|n| {
+        let ranks = self.exec.ranks();
+        let mut owner = vec![0u32; order.len()];
+        if ranks > 1 {
+            let home = w.internal.home_ranks(ranks);
+            let by_load: Vec<_> = order.iter().map(|&t| tasks.tasks[t].clone()).collect();
+            let (assigned, _) = locality_aware(&by_load, ranks, &|p| home[p as usize] as usize);
+            for (r, mine) in assigned.iter().enumerate() {
+                for &n in mine {
+                    owner[n] = r as u32;
+                }
+            }
+        }
+        let answers = self.exec.map_on_ranks(order.len(), &owner, &|n| {
             let task = &tasks.tasks[order[n]];
             let _span = trace::span_with("narrow task", "candidates", task.range.len() as u64);
             let clock = Instant::now();
@@ -1004,7 +1037,7 @@ impl<E: Executor> Engine<E> {
                 stats,
                 (task.pair, seconds, task.range.len() as u64),
             )
-        });
+        })?;
         self.totals.narrow_queries += candidates.len() as u64;
         let mut reported = Vec::new();
         let mut measured = Vec::with_capacity(answers.len());
@@ -1015,7 +1048,7 @@ impl<E: Executor> Engine<E> {
         }
         costs.record(measured);
         reported.sort_unstable();
-        reported
+        Ok(reported)
     }
 
     /// Retires calm innermost layers; returns how many were retired.
@@ -1026,7 +1059,7 @@ impl<E: Executor> Engine<E> {
     /// `retire_after_windows` calm windows in a row its innermost layer is
     /// retired, then the next innermost as long as it is certified too — the
     /// active set stays a prefix `1..=depth` — and the counter restarts.
-    fn commit(&mut self, candidates: &[StencilKey]) -> u64 {
+    fn commit(&mut self, candidates: &[StencilKey]) -> Result<u64, CommError> {
         const TASK: usize = 64;
         let w = &self.world;
         let traj = &self.traj;
@@ -1035,7 +1068,9 @@ impl<E: Executor> Engine<E> {
             w.layers.stencils.iter().map(|(k, s)| (*k, *s)).collect();
         // Each stencil's new state depends on its own certificates only, so
         // the stencils are decided on the executor and applied in key order.
-        let decided = self.exec.map(entries.len().div_ceil(TASK), &|t| {
+        let tasks = entries.len().div_ceil(TASK);
+        let owner = place_in_blocks(tasks, self.exec.ranks());
+        let decided = self.exec.map_on_ranks(tasks, &owner, &|t| {
             let _span = trace::span_with("commit task", "first", (t * TASK) as u64);
             let mut ccd = CcdStats::default();
             let run = &entries[t * TASK..((t + 1) * TASK).min(entries.len())];
@@ -1065,7 +1100,7 @@ impl<E: Executor> Engine<E> {
                 })
                 .collect();
             (states, ccd)
-        });
+        })?;
         let mut retired = 0;
         let mut decided_states = Vec::with_capacity(entries.len());
         for (states, ccd) in decided {
@@ -1081,7 +1116,7 @@ impl<E: Executor> Engine<E> {
                 layers.insert(*key, s);
             }
         }
-        retired
+        Ok(retired)
     }
 
     #[allow(clippy::too_many_arguments)]

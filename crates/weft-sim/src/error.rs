@@ -86,6 +86,9 @@ pub enum SimError {
     /// at the start of the window it was in, which is the last committed state.
     #[error("interrupted in the window starting at t = {time:.6} s")]
     Interrupted { time: f64 },
+    /// The ranks sharing the run lost contact.
+    #[error("the ranks lost contact: {0}")]
+    Ranks(#[from] crate::executor::CommError),
     /// A saved state does not fit this world.
     #[error("the saved state does not fit this scene: {0}")]
     StateMismatch(String),

@@ -5,6 +5,33 @@
 //! are ordered folds done afterwards, so the result is the same bits on any
 //! executor and any partitioning. [`Serial`] runs everything on the calling
 //! thread; the threaded and multi-rank executors implement the same trait.
+//!
+//! Executors over *ranks* (processes, or threads standing in for them, each
+//! with memory of its own) also spread the heavy stages over the ranks:
+//! [`Executor::map_on_ranks`] and [`Executor::chunks_on_ranks`] compute each
+//! item on one rank and hand every rank all results. They are **collective**:
+//! every rank's engine calls them in the same order with the same arguments —
+//! which holds because every rank holds the same state and takes the same
+//! decisions. On a single-memory executor they are `map` and
+//! `for_each_chunk`.
+
+use serde::{de::DeserializeOwned, Serialize};
+
+/// A value that travels between ranks, encoded with its exact bits.
+pub trait Message: Serialize + DeserializeOwned + Send {}
+impl<T: Serialize + DeserializeOwned + Send> Message for T {}
+
+/// Messages and payload bytes a rank sent to its peers.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
+pub struct Traffic {
+    pub messages: u64,
+    pub bytes: u64,
+}
+
+/// Ranks lost contact (a peer failed or is gone): the run cannot go on.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct CommError(pub String);
 
 /// Runs the engine's parallel stages.
 pub trait Executor: Sync {
@@ -22,6 +49,81 @@ pub trait Executor: Sync {
 
     /// A short name for logs and benchmarks.
     fn name(&self) -> String;
+
+    /// How many ranks share the work (1 for a single memory).
+    fn ranks(&self) -> usize {
+        1
+    }
+
+    /// This rank, `0..ranks()`.
+    fn rank(&self) -> usize {
+        0
+    }
+
+    /// **Collective over ranks.** Whether any rank says `yes`: how ranks
+    /// agree, at a window boundary, to stop when a signal or a deadline
+    /// reached only some of them.
+    fn any_rank(&self, yes: bool) -> Result<bool, CommError> {
+        let owner: Vec<u32> = (0..self.ranks() as u32).collect();
+        let said = self.map_on_ranks(owner.len(), &owner, &|_| yes)?;
+        Ok(said.into_iter().any(|y| y))
+    }
+
+    /// What this rank sent to other ranks so far (nothing on one memory).
+    fn traffic(&self) -> Traffic {
+        Traffic::default()
+    }
+
+    /// **Collective over ranks.** `(0..n).map(f)`, item `i` computed on rank
+    /// `owner[i]` only; every rank gets all results, in index order.
+    /// `owner` is ignored on a single memory.
+    fn map_on_ranks<R: Message>(
+        &self,
+        n: usize,
+        owner: &[u32],
+        f: &(dyn Fn(usize) -> R + Sync),
+    ) -> Result<Vec<R>, CommError> {
+        let _ = owner;
+        Ok(self.map(n, f))
+    }
+
+    /// **Collective over ranks.** [`Executor::for_each_chunk`] with chunk `k`
+    /// computed on the rank that [`place_by_size`] gives it; afterwards every
+    /// rank's `data` holds every chunk.
+    fn chunks_on_ranks<T: Message>(
+        &self,
+        data: &mut [T],
+        bounds: &[usize],
+        task: &(dyn Fn(usize, &mut [T]) + Sync),
+    ) -> Result<(), CommError> {
+        self.for_each_chunk(data, bounds, task);
+        Ok(())
+    }
+}
+
+/// Places consecutive items of the given sizes on `ranks` ranks in
+/// contiguous runs of about equal total size: item `k` goes to the rank whose
+/// share contains its middle element. Partitions placed this way keep their
+/// neighbours (METIS numbers neighbouring parts close) on the same rank.
+pub fn place_by_size(sizes: impl IntoIterator<Item = usize>, ranks: usize) -> Vec<u32> {
+    let sizes: Vec<usize> = sizes.into_iter().collect();
+    let total: usize = sizes.iter().sum();
+    let ranks = ranks.max(1);
+    let mut before = 0usize;
+    sizes
+        .iter()
+        .map(|&size| {
+            let mid = before + size / 2;
+            before += size;
+            ((mid * ranks) / total.max(1)).min(ranks - 1) as u32
+        })
+        .collect()
+}
+
+/// `n` items in `ranks` contiguous blocks of about equal count.
+pub fn place_in_blocks(n: usize, ranks: usize) -> Vec<u32> {
+    let ranks = ranks.max(1);
+    (0..n).map(|i| (i * ranks / n.max(1)) as u32).collect()
 }
 
 /// `data` cut at `bounds` (ascending; `bounds[0] == 0`, last `== data.len()`)

@@ -44,6 +44,13 @@ pub struct InternalForces {
 }
 
 impl InternalForces {
+    /// The rank each partition lives on when the world is spread over
+    /// `ranks` ranks: contiguous runs of partitions with about equal
+    /// internal-force work (output slots).
+    pub fn home_ranks(&self, ranks: usize) -> Vec<u32> {
+        crate::executor::place_by_size(self.partitions.iter().map(|p| p.slots.len()), ranks)
+    }
+
     /// Builds the stencils of cloth triangles (`tri_material[f] = Some(m)`) and
     /// of interior edges between two cloth triangles, stored partition by
     /// partition: `part_of_tri[f] < n_parts` for every cloth triangle (a hinge
@@ -199,6 +206,9 @@ impl InternalForces {
     /// Evaluates every element at positions `x` (and velocities `v` for
     /// damping, read at the start of the batch): writes `dV/dx - f_damping`
     /// per element corner into `out` (partition-major slots).
+    ///
+    /// Over ranks, each rank evaluates the partitions placed on it and every
+    /// rank receives all slots ([`Executor::chunks_on_ranks`]).
     pub fn evaluate<E: Executor>(
         &self,
         exec: &E,
@@ -206,11 +216,11 @@ impl InternalForces {
         x: &[DVec3],
         v: &[DVec3],
         out: &mut [DVec3],
-    ) {
-        exec.for_each_chunk(out, bounds, &|p, chunk: &mut [DVec3]| {
+    ) -> Result<(), crate::CommError> {
+        exec.chunks_on_ranks(out, bounds, &|p, chunk: &mut [DVec3]| {
             let _span = crate::trace::span_with("partition", "partition", p as u64);
             self.evaluate_partition(p, x, v, chunk);
-        });
+        })
     }
 
     /// Evaluates partition `p`'s elements into `chunk` (its output slots,

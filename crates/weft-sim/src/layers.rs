@@ -131,7 +131,7 @@ impl ActiveLayers {
 }
 
 /// The impulses of one penalty-layer event on its stencil's four vertices.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize)]
 pub struct PenaltyImpulse {
     /// Normal impulse on each vertex (N·s).
     pub normal: [DVec3; 4],

@@ -50,6 +50,6 @@ pub use config::{ContactConfig, LimitsConfig, TimeConfig};
 pub use diagnostics::{WindowStats, WindowTiming};
 pub use engine::{Engine, RunTotals};
 pub use error::SimError;
-pub use executor::{Executor, Serial};
+pub use executor::{CommError, Executor, Message, Serial, Traffic};
 pub use state::EngineState;
 pub use world::{ObjectKind, ObjectSpec, PinSpec, World, WorldSpec};

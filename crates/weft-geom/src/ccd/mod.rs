@@ -137,7 +137,7 @@ pub struct Trajectory<'a> {
 }
 
 /// Counters of the narrow phase (summed over queries).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub struct CcdStats {
     /// queries answered.
     pub queries: u64,

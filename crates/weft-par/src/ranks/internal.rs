@@ -24,13 +24,8 @@ use glam::DVec3;
 use weft_sim::World;
 
 use super::plan::RankPlan;
+use super::transport::Traffic;
 
-/// Messages and payload bytes one rank sent.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Traffic {
-    pub messages: u64,
-    pub bytes: u64,
-}
 
 enum Payload {
     /// (x, v) of the sender's listed vertices.

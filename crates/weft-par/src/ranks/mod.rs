@@ -4,10 +4,21 @@
 //! | module | what |
 //! |---|---|
 //! | [`mod@plan`] | partition placement, owned / ghost vertices, boundary and interior partitions, who sends what |
+//! | [`mod@executor`] | [`Ranks`]: one rank's executor — its share of every stage, all-gathered |
+//! | [`mod@transport`] | the [`Transport`] collective and its in-process channels |
+//! | `mpi` (feature `mpi`) | `MpiTransport`: the [`Transport`] over MPI, nonblocking collectives polled with a back-off |
 //! | [`mod@internal`] | internal-force ticks over ranks: ghost exchange overlapped with interior work, slot exchange, ordered folds |
 
+pub mod executor;
 pub mod internal;
+#[cfg(feature = "mpi")]
+pub mod mpi;
 pub mod plan;
+pub mod transport;
 
-pub use internal::{run_ticks, Traffic};
+#[cfg(feature = "mpi")]
+pub use self::mpi::MpiTransport;
+pub use executor::{in_process, Ranks};
+pub use internal::run_ticks;
 pub use plan::{place_partitions, plan, RankPlan};
+pub use transport::{ChannelTransport, RankFailure, Traffic, TrafficCounter, Transport};

@@ -17,19 +17,7 @@ use weft_sim::World;
 /// Places partitions on `ranks` ranks: contiguous runs of partition ids with
 /// about equal numbers of output slots (the internal-force work).
 pub fn place_partitions(world: &World, ranks: usize) -> Vec<u32> {
-    let parts = &world.internal.partitions;
-    let total: usize = parts.iter().map(|p| p.slots.len()).sum();
-    let ranks = ranks.max(1);
-    let mut before = 0usize;
-    parts
-        .iter()
-        .map(|p| {
-            // The rank whose share contains this partition's middle slot.
-            let mid = before + p.slots.len() / 2;
-            before += p.slots.len();
-            ((mid * ranks) / total.max(1)).min(ranks - 1) as u32
-        })
-        .collect()
+    world.internal.home_ranks(ranks)
 }
 
 /// One rank's share.

@@ -26,6 +26,8 @@
 //! checkpointed.
 
 pub mod manifest;
+#[cfg(feature = "mpi")]
+pub mod mpi_launch;
 pub mod outputs;
 pub mod progress;
 pub mod signals;
@@ -78,6 +80,12 @@ pub struct RunArgs {
     /// bits for any count.
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub threads: usize,
+    /// Ranks simulated in this process: threads with memory of their own that
+    /// exchange every result as messages — MPI's code paths without MPI. Each
+    /// rank gets --threads threads (0: the cores shared out). Same bits for any
+    /// count. Under mpirun (feature `mpi`) the ranks are MPI's instead.
+    #[arg(long, default_value_t = 1, value_name = "R", value_parser = clap::value_parser!(u32).range(1..=256))]
+    pub ranks: u32,
     /// Print nothing but the final JSON line.
     #[arg(long)]
     pub quiet: bool,
@@ -139,6 +147,7 @@ pub struct RunSummary {
 }
 
 /// One run of a scene into an output folder.
+#[derive(Clone)]
 pub struct RunJob<'a> {
     pub scene: &'a Scene,
     pub out: &'a Path,
@@ -154,8 +163,78 @@ pub struct RunJob<'a> {
 }
 
 pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
-    let command_line: Vec<String> = std::env::args().collect();
-    let (scene, out, resume) = match &a.resume {
+    #[cfg(feature = "mpi")]
+    if mpi_launch::launched() {
+        return mpi_launch::run(a);
+    }
+    let (scene, out, resume) = prepare(&a)?;
+    let job = new_job(&a, &scene, &out, resume)?;
+    let result = if a.ranks > 1 {
+        on_simulated_ranks(&a, job)
+    } else {
+        let threads = Threads::new(a.threads).context("cannot start the worker threads")?;
+        if threads.threads() == 1 {
+            execute(job, Serial)
+        } else {
+            let exec = threads.clone();
+            threads.install(move || execute(job, exec))
+        }
+    };
+    // The timeline is written whatever the outcome: a failed run's is the
+    // one worth reading.
+    if let Some(path) = &a.trace {
+        write_trace(path, &scene.name, a.quiet)?;
+    }
+    let summary = result?;
+    println!("{}", serde_json::to_string(&summary)?);
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Runs `job` on `a.ranks` ranks simulated in this process; returns rank 0's
+/// summary (every rank ends in the same state), or the first error — rank
+/// 0's first, as a peer's error is then only that it lost rank 0.
+fn on_simulated_ranks(a: &RunArgs, job: RunJob<'_>) -> anyhow::Result<RunSummary> {
+    let ranks = a.ranks as usize;
+    let per_rank = match a.threads {
+        0 => (std::thread::available_parallelism().map_or(1, |n| n.get()) / ranks).max(1),
+        n => n,
+    };
+    let pools = (0..ranks)
+        .map(|_| Threads::new(per_rank))
+        .collect::<Result<Vec<_>, _>>()
+        .context("cannot start the worker threads")?;
+    let results = weft_par::ranks::in_process(
+        ranks,
+        |r| pools[r].clone(),
+        |exec| {
+            let pool = exec.local().clone();
+            let job = job.clone();
+            pool.install(move || execute(job, exec))
+        },
+    );
+    let mut first_error = None;
+    let mut summary = None;
+    for r in results {
+        match r {
+            Ok(s) => {
+                summary.get_or_insert(s);
+            }
+            Err(e) => {
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    match (first_error, summary) {
+        (Some(e), _) => Err(e),
+        (None, Some(s)) => Ok(s),
+        (None, None) => bail!("no rank ran"),
+    }
+}
+
+/// The scene, the output folder, and whether the run resumes: what `a` asks
+/// for, checked.
+fn prepare(a: &RunArgs) -> anyhow::Result<(Scene, PathBuf, bool)> {
+    Ok(match &a.resume {
         Some(dir) => {
             let m = Manifest::read(dir)?;
             let mut overrides = m.overrides.clone();
@@ -176,41 +255,35 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
             }
             (load_scene(scene, &a.overrides)?, out.clone(), false)
         }
-    };
+    })
+}
+
+/// The job `a` asks for, with stop requests wired to the signals.
+fn new_job<'a>(
+    a: &RunArgs,
+    scene: &'a Scene,
+    out: &'a Path,
+    resume: bool,
+) -> anyhow::Result<RunJob<'a>> {
     let mut stop = StopRequest::new()
         .on_signals()
         .context("cannot install the signal handlers")?;
     if let Some(d) = a.stop_after {
         stop = stop.deadline(d);
     }
-    let job = RunJob {
-        scene: &scene,
-        out: &out,
+    Ok(RunJob {
+        scene,
+        out,
         quiet: a.quiet,
         resume,
         stop,
         preview: !a.no_preview,
-        command_line,
+        command_line: std::env::args().collect(),
         trace_windows: a
             .trace
             .as_ref()
             .map(|_| a.trace_windows.clone().unwrap_or(0..u64::MAX)),
-    };
-    let threads = Threads::new(a.threads).context("cannot start the worker threads")?;
-    let result = if threads.threads() == 1 {
-        execute(job, Serial)
-    } else {
-        let exec = threads.clone();
-        threads.install(move || execute(job, exec))
-    };
-    // The timeline is written whatever the outcome: a failed run's is the
-    // one worth reading.
-    if let Some(path) = &a.trace {
-        write_trace(path, &scene.name, a.quiet)?;
-    }
-    let summary = result?;
-    println!("{}", serde_json::to_string(&summary)?);
-    Ok(ExitCode::SUCCESS)
+    })
 }
 
 /// Runs `scene` to its end time from the start, writing outputs under `out`
@@ -272,15 +345,27 @@ pub(crate) fn scene_hash(scene: &Scene, world: &World) -> String {
 }
 
 /// Runs a job: see the module documentation for what it writes.
+///
+/// On an executor spread over ranks every rank calls this with the same job:
+/// every rank steps the same windows (the engine's collectives keep them in
+/// step) and only rank 0 writes — outputs, checkpoints, manifest, progress.
+/// The ranks agree at every window boundary whether to stop, so a signal or
+/// deadline that reached only some of them stops all at the same window.
 pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSummary> {
     let started = Instant::now();
     let (scene, out) = (job.scene, job.out);
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let leader = exec.rank() == 0;
+    let spread = exec.ranks() > 1;
+    if leader {
+        std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    }
     let world = weft_par::build_world(&scene.world)?;
     let hash = scene_hash(scene, &world);
     let mut engine = Engine::new(world, exec)?;
     let machine = Machine::this();
-    let (mut outputs, mut manifest, prior_wall) = if job.resume {
+    let mut prior_wall = 0.0;
+    let mut writer = None;
+    if job.resume {
         let path = out.join(CHECKPOINT_FILE);
         if !path.exists() {
             bail!(
@@ -291,7 +376,6 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
             );
         }
         let ck = read_checkpoint(&path)?;
-        remove_abandoned_temporaries(out);
         if ck.scene_hash != hash {
             bail!(
                 "{}: the checkpoint was made from a different scene (scene hash {} there, {} now); \
@@ -305,23 +389,27 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
         engine
             .restore(ck.engine)
             .with_context(|| format!("{}", path.display()))?;
-        let outputs = RunOutputs::resume(
-            out,
-            &scene.output.formats,
-            scene.output.frame_rate,
-            &ck.cursors,
-        )?;
-        let mut m = Manifest::read(out)?;
-        m.overrides = scene.overrides.clone();
-        m.end_time = scene.end_time;
-        m.segments.push(Segment {
-            started: manifest::now_utc(),
-            command_line: job.command_line.clone(),
-            from_window: engine.world.window_index,
-            machine,
-        });
-        (outputs, m, ck.wall_seconds)
-    } else {
+        prior_wall = ck.wall_seconds;
+        if leader {
+            remove_abandoned_temporaries(out);
+            let outputs = RunOutputs::resume(
+                out,
+                &scene.output.formats,
+                scene.output.frame_rate,
+                &ck.cursors,
+            )?;
+            let mut m = Manifest::read(out)?;
+            m.overrides = scene.overrides.clone();
+            m.end_time = scene.end_time;
+            m.segments.push(Segment {
+                started: manifest::now_utc(),
+                command_line: job.command_line.clone(),
+                from_window: engine.world.window_index,
+                machine,
+            });
+            writer = Some((outputs, m));
+        }
+    } else if leader {
         let outputs = RunOutputs::create(out, &scene.output.formats, scene.output.frame_rate)?;
         write_objects(out, &engine.world)?;
         let m = Manifest {
@@ -345,16 +433,23 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
             }],
             updated: String::new(),
         };
-        (outputs, m, 0.0)
-    };
-    manifest.status = "running".into();
-    manifest.stopped_by = None;
-    manifest.error = None;
-    manifest.write(out)?;
-    engine.set_interrupt(job.stop.flag.clone());
+        writer = Some((outputs, m));
+    }
+    if let Some((_, manifest)) = &mut writer {
+        manifest.status = "running".into();
+        manifest.stopped_by = None;
+        manifest.error = None;
+        manifest.write(out)?;
+    }
+    // On one memory the engine stops mid-window on a request; over ranks
+    // they agree at window boundaries instead (a rank alone cannot stop).
+    if !spread {
+        engine.set_interrupt(job.stop.flag.clone());
+    }
+    let quiet = job.quiet || !leader;
 
     let w = &engine.world;
-    if !job.quiet {
+    if !quiet {
         eprintln!(
             "weft: {} — {} vertices, {} triangles, h_el = {:.3e} s, window = {} steps, eta_1 = {:.3e} m, {}{}",
             scene.name,
@@ -372,7 +467,7 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
         );
     }
     let end_tick = w.lattice.window_end_at_or_after(scene.end_time);
-    let mut progress = Progress::new(job.quiet, w.time(), engine.totals.windows, scene.end_time);
+    let mut progress = Progress::new(quiet, w.time(), engine.totals.windows, scene.end_time);
     let mut saver = Saver {
         out,
         hash: &hash,
@@ -381,7 +476,9 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
         prior_wall,
         started,
     };
-    outputs.frames_due(&engine.world)?;
+    if let Some((outputs, _)) = &mut writer {
+        outputs.frames_due(&engine.world)?;
+    }
     let mut stopped_by = None;
     while engine.world.tick < end_tick {
         if let Some(range) = &job.trace_windows {
@@ -394,48 +491,59 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
                 break;
             }
             Err(e) => {
-                outputs.flush()?;
-                if matches!(e, SimError::RollbackCap { .. }) {
-                    // The engine is back at the window start: the last commit.
-                    let _ = save_repro(out, &engine.world);
-                    if let Ok(r) = saver.save(&engine, &mut outputs) {
-                        manifest.last_checkpoint = Some(r);
-                    }
-                }
                 progress.finish();
-                manifest.status = "failed".into();
-                manifest.error = Some(e.to_string());
-                let _ = manifest.write(out);
+                if let Some((outputs, manifest)) = &mut writer {
+                    outputs.flush()?;
+                    if matches!(e, SimError::RollbackCap { .. }) {
+                        // The engine is back at the window start: the last commit.
+                        let _ = save_repro(out, &engine.world);
+                        if let Ok(r) = saver.save(&engine, outputs) {
+                            manifest.last_checkpoint = Some(r);
+                        }
+                    }
+                    manifest.status = "failed".into();
+                    manifest.error = Some(e.to_string());
+                    let _ = manifest.write(out);
+                }
                 return Err(e.into());
             }
         };
-        outputs.record_window(&stats)?;
-        outputs.frames_due(&engine.world)?;
-        progress.update(&progress::Snapshot {
-            time: engine.world.time(),
-            windows: engine.totals.windows,
-            rollbacks: engine.totals.rollbacks,
-            active: stats.active_stencils,
-            depth: stats.max_depth,
-        });
         let every = scene.output.checkpoint_every;
-        if every > 0 && engine.world.window_index % every == 0 && engine.world.tick < end_tick {
-            manifest.last_checkpoint = Some(saver.save(&engine, &mut outputs)?);
-            manifest.write(out)?;
+        if let Some((outputs, manifest)) = &mut writer {
+            outputs.record_window(&stats)?;
+            outputs.frames_due(&engine.world)?;
+            progress.update(&progress::Snapshot {
+                time: engine.world.time(),
+                windows: engine.totals.windows,
+                rollbacks: engine.totals.rollbacks,
+                active: stats.active_stencils,
+                depth: stats.max_depth,
+            });
+            if every > 0 && engine.world.window_index % every == 0 && engine.world.tick < end_tick
+            {
+                manifest.last_checkpoint = Some(saver.save(&engine, outputs)?);
+                manifest.write(out)?;
+            }
         }
-        if job.stop.requested() {
-            stopped_by = Some(job.stop.reason().unwrap_or("interrupt"));
+        let stop = job.stop.requested();
+        if engine.executor().any_rank(stop)? {
+            // A rank that was not asked itself names the request it joined.
+            stopped_by = Some(job.stop.reason().unwrap_or("a stop request on another rank"));
             break;
         }
     }
     progress.finish();
-    // Also at the end: a completed run can be extended with --resume.
-    manifest.last_checkpoint = Some(saver.save(&engine, &mut outputs)?);
     let complete = stopped_by.is_none();
-    manifest.status = if complete { "complete" } else { "stopped" }.into();
-    manifest.stopped_by = stopped_by.map(String::from);
-    manifest.write(out)?;
-    if !job.quiet {
+    let mut frames = 0;
+    if let Some((outputs, manifest)) = &mut writer {
+        // Also at the end: a completed run can be extended with --resume.
+        manifest.last_checkpoint = Some(saver.save(&engine, outputs)?);
+        manifest.status = if complete { "complete" } else { "stopped" }.into();
+        manifest.stopped_by = stopped_by.map(String::from);
+        manifest.write(out)?;
+        frames = outputs.frames_written();
+    }
+    if !quiet {
         if let Some(why) = stopped_by {
             eprintln!(
                 "weft: stopped by {why} at t = {:.6} s (window {}); continue with `weft run --resume {}`",
@@ -445,7 +553,7 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
             );
         }
     }
-    if complete && job.preview {
+    if complete && job.preview && leader {
         preview(out, job.quiet, scene_camera(scene));
     }
     let w = &engine.world;
@@ -461,7 +569,7 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
         wall_seconds: wall,
         total_wall_seconds: prior_wall + wall,
         simulated_seconds: w.time(),
-        frames: outputs.frames_written(),
+        frames,
         max_depth: engine.totals.max_depth,
         max_active_stencils: engine.totals.max_active_stencils,
         narrow_queries: engine.totals.narrow_queries,

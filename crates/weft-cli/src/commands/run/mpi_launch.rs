@@ -1,0 +1,105 @@
+//! `weft run` under `mpirun` (feature `mpi`): each process is one rank of a
+//! [`Ranks`] executor over [`MpiTransport`], with `--threads` threads.
+//!
+//! Failure behaviour, so that no rank ever waits for one that will not come:
+//!
+//! * **Setup** (scene, meshes, manifest, overrides): every rank checks it,
+//!   then the ranks compare outcomes in one collective; if any failed, rank 0
+//!   prints the error (naming the rank when not all ranks saw it) and every
+//!   rank exits 1.
+//! * **The run**: an engine error is the same on every rank (every rank holds
+//!   the same state), so rank 0 prints it and every rank exits 1. Any other
+//!   error (a write that failed on rank 0, a lost peer) is printed by the rank
+//!   that saw it, which then aborts the MPI job — MPI ends every rank.
+//! * A **lost rank** (killed, crashed): `mpirun` ends the others; the
+//!   manifest still names the last good checkpoint.
+
+use std::process::ExitCode;
+
+use anyhow::Context;
+use weft_par::ranks::{MpiTransport, Transport};
+use weft_par::{Ranks, Threads};
+use weft_sim::SimError;
+
+use super::{execute, new_job, prepare, write_trace, RunArgs};
+
+/// Whether this process was started by an MPI launcher (`mpirun`, `srun`).
+pub fn launched() -> bool {
+    ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK", "MPI_LOCALNRANKS"]
+        .iter()
+        .any(|v| std::env::var_os(v).is_some())
+}
+
+/// `weft run` as one MPI rank.
+pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
+    if a.ranks > 1 {
+        anyhow::bail!(
+            "--ranks simulates ranks in one process; under mpirun the ranks are MPI's \
+             (mpirun -n R weft run …)"
+        );
+    }
+    let transport = MpiTransport::init().map_err(|e| anyhow::anyhow!("cannot start MPI: {e}"))?;
+    let rank = transport.rank();
+    let setup = prepare(&a);
+    let failed = setup
+        .as_ref()
+        .err()
+        .map(|e| format!("{e:#}"))
+        .unwrap_or_default();
+    let all = transport
+        .all_gather(failed.into_bytes())
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let errors: Vec<(usize, String)> = all
+        .into_iter()
+        .enumerate()
+        .filter(|(_, m)| !m.is_empty())
+        .map(|(r, m)| (r, String::from_utf8_lossy(&m).into_owned()))
+        .collect();
+    if let Some((r, text)) = errors.first() {
+        if rank == 0 {
+            if errors.len() == transport.size() && errors.iter().all(|(_, t)| t == text) {
+                eprintln!("error: {text}");
+            } else {
+                eprintln!("error: on rank {r}: {text}");
+            }
+        }
+        return Ok(ExitCode::from(1));
+    }
+    let (scene, out, resume) = setup?;
+    let job = new_job(&a, &scene, &out, resume)?;
+    let threads = Threads::new(a.threads).context("cannot start the worker threads")?;
+    let exec = Ranks::new(&transport, threads.clone());
+    let result = threads.install(move || execute(job, exec));
+    if let Some(path) = &a.trace {
+        // One timeline per rank: rank 0 at the given path, rank r beside it.
+        let path = if rank == 0 {
+            path.clone()
+        } else {
+            path.with_extension(format!("rank{rank}.json"))
+        };
+        write_trace(&path, &scene.name, a.quiet || rank != 0)?;
+    }
+    match result {
+        Ok(summary) => {
+            if rank == 0 {
+                println!("{}", serde_json::to_string(&summary)?);
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(e) => {
+            let same_everywhere = matches!(
+                e.downcast_ref::<SimError>(),
+                Some(err) if !matches!(err, SimError::Ranks(_))
+            );
+            if same_everywhere {
+                if rank == 0 {
+                    eprintln!("error: {e:#}");
+                }
+                return Ok(ExitCode::from(1));
+            }
+            eprintln!("error: on rank {rank}: {e:#}");
+            transport.abort(1)
+        }
+    }
+}
+

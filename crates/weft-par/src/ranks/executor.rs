@@ -1,0 +1,281 @@
+//! The `Ranks` executor: one rank of a run spread over ranks that share no
+//! memory, talking only through a [`Transport`].
+//!
+//! Every rank holds the whole state and runs the engine's control flow; the
+//! heavy stages are spread: a rank evaluates the internal forces of the
+//! partitions placed on it, the penalty closest points and kicks of its block
+//! of awake stencils, the broad-phase traversal tasks and the narrow-phase
+//! tasks the locality-aware balancer gives it (Algorithm 2 of the paper), and
+//! the retirement certificates of its block of active stencils. After each
+//! stage one all-gather hands every rank every result, so every rank applies
+//! the same values in the same order — and every rank's state, and the
+//! result, has the same bits as on one memory. The rollback decision needs no
+//! extra reduction: every rank sees every narrow-phase answer.
+//!
+//! Within a rank, the rank's own share runs on a local executor (threads).
+
+use weft_sim::{CommError, Executor, Message, Serial};
+
+use super::transport::{ChannelTransport, Traffic, Transport};
+
+/// One rank: a transport to its peers and a local executor for its share.
+pub struct Ranks<T: Transport, E: Executor = Serial> {
+    transport: T,
+    local: E,
+}
+
+impl<T: Transport, E: Executor> Ranks<T, E> {
+    /// This rank of `transport`'s ranks, running its share on `local`.
+    pub fn new(transport: T, local: E) -> Self {
+        Self { transport, local }
+    }
+
+    /// The transport.
+    pub fn transport(&self) -> &T {
+        &self.transport
+    }
+
+    /// The local executor.
+    pub fn local(&self) -> &E {
+        &self.local
+    }
+
+    fn encode<R: serde::Serialize + ?Sized>(&self, value: &R) -> Result<Vec<u8>, CommError> {
+        postcard::to_allocvec(value).map_err(|e| {
+            CommError(format!("rank {}: cannot encode a message: {e}", self.rank()))
+        })
+    }
+
+    fn decode<R: Message>(&self, from: usize, bytes: &[u8]) -> Result<R, CommError> {
+        postcard::from_bytes(bytes).map_err(|e| {
+            CommError(format!(
+                "rank {}: the message from rank {from} is malformed: {e}",
+                self.rank()
+            ))
+        })
+    }
+
+    fn check_owner(&self, n: usize, owner: &[u32]) -> Result<(), CommError> {
+        let size = self.transport.size();
+        if owner.len() != n || owner.iter().any(|&r| r as usize >= size) {
+            return Err(CommError(format!(
+                "rank {}: a work placement names {} items for {n} (ranks 0..{size})",
+                self.rank(),
+                owner.len()
+            )));
+        }
+        Ok(())
+    }
+}
+
+impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
+    fn for_each_chunk<D: Send>(
+        &self,
+        data: &mut [D],
+        bounds: &[usize],
+        task: &(dyn Fn(usize, &mut [D]) + Sync),
+    ) {
+        self.local.for_each_chunk(data, bounds, task);
+    }
+
+    fn map<R: Send>(&self, n: usize, f: &(dyn Fn(usize) -> R + Sync)) -> Vec<R> {
+        self.local.map(n, f)
+    }
+
+    fn name(&self) -> String {
+        format!(
+            "rank {} of {} ({})",
+            self.rank(),
+            self.transport.size(),
+            self.local.name()
+        )
+    }
+
+    fn ranks(&self) -> usize {
+        self.transport.size()
+    }
+
+    fn rank(&self) -> usize {
+        self.transport.rank()
+    }
+
+    fn traffic(&self) -> Traffic {
+        self.transport.traffic()
+    }
+
+    fn map_on_ranks<R: Message>(
+        &self,
+        n: usize,
+        owner: &[u32],
+        f: &(dyn Fn(usize) -> R + Sync),
+    ) -> Result<Vec<R>, CommError> {
+        self.check_owner(n, owner)?;
+        let me = self.rank() as u32;
+        let mine: Vec<usize> = (0..n).filter(|&i| owner[i] == me).collect();
+        let results = self.local.map(mine.len(), &|k| f(mine[k]));
+        let parts = self.transport.all_gather(self.encode(&results)?)?;
+        let mut slots: Vec<Option<R>> = (0..n).map(|_| None).collect();
+        for (j, part) in parts.iter().enumerate() {
+            let values: Vec<R> = if j == me as usize {
+                Vec::new() // placed below, without a decode
+            } else {
+                self.decode(j, part)?
+            };
+            let theirs = (0..n).filter(|&i| owner[i] as usize == j);
+            if j != me as usize {
+                let count = theirs.clone().count();
+                if values.len() != count {
+                    return Err(CommError(format!(
+                        "rank {me}: rank {j} sent {} results for {count} items",
+                        values.len()
+                    )));
+                }
+            }
+            for (i, value) in theirs.zip(values) {
+                slots[i] = Some(value);
+            }
+        }
+        for (i, value) in mine.into_iter().zip(results) {
+            slots[i] = Some(value);
+        }
+        slots
+            .into_iter()
+            .map(|s| s.ok_or_else(|| CommError(format!("rank {me}: a result never came"))))
+            .collect()
+    }
+
+    fn chunks_on_ranks<D: Message>(
+        &self,
+        data: &mut [D],
+        bounds: &[usize],
+        task: &(dyn Fn(usize, &mut [D]) + Sync),
+    ) -> Result<(), CommError> {
+        let chunks = bounds.len().saturating_sub(1);
+        let sizes = (0..chunks).map(|k| bounds[k + 1] - bounds[k]);
+        let owner = weft_sim::executor::place_by_size(sizes, self.transport.size());
+        let me = self.rank() as u32;
+        self.local.for_each_chunk(data, bounds, &|k, chunk| {
+            if owner[k] == me {
+                task(k, chunk);
+            }
+        });
+        // My chunks, concatenated in chunk order.
+        let mine: Vec<&[D]> = (0..chunks)
+            .filter(|&k| owner[k] == me)
+            .map(|k| &data[bounds[k]..bounds[k + 1]])
+            .collect();
+        let parts = self.transport.all_gather(self.encode(&mine)?)?;
+        for (j, part) in parts.iter().enumerate() {
+            if j == me as usize {
+                continue;
+            }
+            let theirs: Vec<usize> = (0..chunks).filter(|&k| owner[k] as usize == j).collect();
+            let values: Vec<Vec<D>> = self.decode(j, part)?;
+            let fits = values.len() == theirs.len()
+                && theirs
+                    .iter()
+                    .zip(&values)
+                    .all(|(&k, v)| v.len() == bounds[k + 1] - bounds[k]);
+            if !fits {
+                return Err(CommError(format!(
+                    "rank {me}: rank {j}'s chunks do not fit the placement"
+                )));
+            }
+            for (k, chunk) in theirs.into_iter().zip(values) {
+                for (slot, value) in data[bounds[k]..bounds[k + 1]].iter_mut().zip(chunk) {
+                    *slot = value;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Runs `body` on `ranks` threads standing in for processes: each gets its
+/// own [`Ranks`] executor over channels, with the local executor
+/// `local(rank)`, and builds its own state. Returns each rank's result, in
+/// rank order. A rank that fails drops its channels, so its peers' next
+/// collective fails instead of hanging; a rank's panic is re-raised here.
+pub fn in_process<E, R>(
+    ranks: usize,
+    local: impl Fn(usize) -> E + Sync,
+    body: impl Fn(Ranks<ChannelTransport, E>) -> R + Sync,
+) -> Vec<R>
+where
+    E: Executor + Send,
+    R: Send,
+{
+    let transports = ChannelTransport::connected(ranks);
+    std::thread::scope(|s| {
+        let handles: Vec<_> = transports
+            .into_iter()
+            .enumerate()
+            .map(|(rank, t)| {
+                let (local, body) = (&local, &body);
+                std::thread::Builder::new()
+                    .name(format!("weft-rank-{rank}"))
+                    .spawn_scoped(s, move || body(Ranks::new(t, local(rank))))
+                    .expect("spawning a rank thread")
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
+            .collect()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_rank_gets_every_result_computed_once_by_its_owner() {
+        let transports = ChannelTransport::connected(3);
+        let n = 50;
+        let outs: Vec<_> = std::thread::scope(|s| {
+            let handles: Vec<_> = transports
+                .into_iter()
+                .map(|t| {
+                    s.spawn(move || {
+                        let r = Ranks::new(t, Serial);
+                        let owner: Vec<u32> = (0..n).map(|i| (i * 7 % 3) as u32).collect();
+                        let calls = std::sync::atomic::AtomicUsize::new(0);
+                        let squares = r
+                            .map_on_ranks(n, &owner, &|i| {
+                                calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                                (i * i) as f64
+                            })
+                            .unwrap();
+                        let mut data = vec![-1.0f64; 100];
+                        let bounds = [0, 10, 10, 45, 90, 100];
+                        r.chunks_on_ranks(&mut data, &bounds, &|k, chunk: &mut [f64]| {
+                            for (j, x) in chunk.iter_mut().enumerate() {
+                                *x = (k * 1000 + j) as f64 + 0.5;
+                            }
+                        })
+                        .unwrap();
+                        let stop = r.any_rank(r.rank() == 2).unwrap();
+                        (squares, calls.into_inner(), data, stop)
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        let mut serial = vec![0.0; 100];
+        let bounds = [0, 10, 10, 45, 90, 100];
+        Serial.for_each_chunk(&mut serial, &bounds, &|k, chunk: &mut [f64]| {
+            for (j, x) in chunk.iter_mut().enumerate() {
+                *x = (k * 1000 + j) as f64 + 0.5;
+            }
+        });
+        let mut total_calls = 0;
+        for (squares, calls, data, stop) in outs {
+            assert_eq!(squares, (0..n).map(|i| (i * i) as f64).collect::<Vec<_>>());
+            assert_eq!(data, serial);
+            assert!(stop);
+            total_calls += calls;
+        }
+        assert_eq!(total_calls, n, "each item computed on one rank only");
+    }
+}

@@ -1,0 +1,280 @@
+//! [`Transport`] over MPI (feature `mpi`): ranks are processes started by
+//! `mpirun`, and [`Transport::all_gather`] is two nonblocking MPI
+//! collectives.
+//!
+//! The project's rule is **never block in an MPI wait inside a thread-pool
+//! task**: the simulation loop runs on a rayon pool thread, and a blocking
+//! `MPI_Wait` there would also stall whatever that thread is asked to help
+//! with. So every collective here is started as an immediate (nonblocking)
+//! operation and completed by polling `MPI_Test` with a back-off (spin, then
+//! yield, then sleep growing to about 1 ms).
+//!
+//! MPI is initialized with thread level `MPI_THREAD_SERIALIZED`: any thread
+//! may call into MPI, one at a time. [`MpiTransport`] enforces that itself: a
+//! lock is held for each MPI call (starting an operation, one test), and a
+//! second lock for a whole collective, so two threads of one rank can never
+//! interleave their collectives' parts.
+//!
+//! Running it: `mpirun -n 3 --bind-to none PROGRAM` (`--bind-to none` lets a
+//! rank's threads use more than one core). As root OpenMPI also wants
+//! `OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1`; more ranks
+//! than cores need `OMPI_MCA_rmaps_base_oversubscribe=1`; in containers set
+//! `OMPI_MCA_btl_vader_single_copy_mechanism=none`.
+
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::time::Duration;
+
+use mpi::datatype::PartitionMut;
+use mpi::environment::Universe;
+use mpi::request::{Request, Scope};
+use mpi::traits::*;
+use mpi::{Count, Threading};
+
+use super::transport::{RankFailure, Traffic, TrafficCounter, Transport};
+
+/// This process's rank in `MPI_COMM_WORLD`, as a [`Transport`].
+///
+/// It owns the MPI [`Universe`]: dropping it finalizes MPI (after which MPI
+/// cannot be initialized again in this process), or, while the thread
+/// panics, aborts every rank (see its `Drop`). It is `Send + Sync` without
+/// any `unsafe`: it keeps no communicator handle (rsmpi's handles hold raw
+/// pointers), only the `Universe`, and makes the world communicator anew
+/// (a constant handle, nothing to allocate or free) for each call.
+pub struct MpiTransport {
+    /// Held for each single MPI call, so calls stay serialized (the thread
+    /// level is `MPI_THREAD_SERIALIZED`) while none waits on another rank.
+    universe: Mutex<Universe>,
+    /// Held for a whole collective ([`Transport::all_gather`],
+    /// [`MpiTransport::barrier`]), so one thread's collective is not
+    /// interleaved with another's.
+    collective: Mutex<()>,
+    rank: usize,
+    size: usize,
+    sent: TrafficCounter,
+}
+
+impl MpiTransport {
+    /// Initializes MPI (thread level `MPI_THREAD_SERIALIZED`) and returns
+    /// this process's rank in the world communicator.
+    ///
+    /// MPI can be initialized once per process: this fails if it already was
+    /// (by an earlier call or by other code), or if the MPI library does not
+    /// provide the serialized thread level (MPI is finalized again then).
+    pub fn init() -> Result<MpiTransport, String> {
+        let (universe, provided) = mpi::initialize_with_threading(Threading::Serialized)
+            .ok_or_else(|| {
+                "MPI is already initialized (it can be initialized once per process)".to_string()
+            })?;
+        if provided < Threading::Serialized {
+            return Err(format!(
+                "the MPI library provides thread level {provided:?}, weft needs Serialized"
+            ));
+        }
+        let world = universe.world();
+        let rank = usize::try_from(world.rank())
+            .map_err(|_| format!("MPI gave a negative rank {}", world.rank()))?;
+        let size = usize::try_from(world.size())
+            .map_err(|_| format!("MPI gave a negative size {}", world.size()))?;
+        Ok(MpiTransport {
+            universe: Mutex::new(universe),
+            collective: Mutex::new(()),
+            rank,
+            size,
+            sent: TrafficCounter::default(),
+        })
+    }
+
+    /// Ends every rank of the run at once (`MPI_Abort` on the world
+    /// communicator), with exit code `code` where the MPI launcher passes one
+    /// on. For an error one rank hits and the others cannot know about: they
+    /// would otherwise wait forever in their next collective.
+    ///
+    /// Not a collective: one rank calls it. It waits only for an MPI call of
+    /// this rank already under way (a start or a test, never a wait).
+    pub fn abort(&self, code: i32) -> ! {
+        let universe = self.mpi_call();
+        universe.world().abort(code)
+    }
+
+    /// **Collective** (nonblocking `MPI_Ibarrier`, completed by polling):
+    /// returns once every rank has called it.
+    pub fn barrier(&self) {
+        let _collective = self
+            .collective
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let request = self.mpi_call().world().immediate_barrier();
+        self.complete(request);
+    }
+
+    /// The lock for one MPI call. A poisoned lock is taken all the same: it
+    /// guards no data of ours, only the order of calls.
+    fn mpi_call(&self) -> MutexGuard<'_, Universe> {
+        self.universe.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Completes `request` by polling `MPI_Test` with a back-off, never
+    /// blocking in an MPI wait. A request must not be dropped unfinished, so
+    /// this does not give up: a peer that never joins the collective hangs
+    /// it (the launcher ends the run when a rank's process dies, and a rank
+    /// that fails calls [`MpiTransport::abort`]).
+    fn complete<'a, D: ?Sized, S: Scope<'a>>(&self, mut request: Request<'a, D, S>) {
+        let mut backoff = Backoff::default();
+        loop {
+            let tested = {
+                let _call = self.mpi_call();
+                request.test()
+            };
+            match tested {
+                Ok(_status) => return,
+                Err(unfinished) => {
+                    request = unfinished;
+                    backoff.snooze();
+                }
+            }
+        }
+    }
+
+    fn failure(&self, what: String) -> RankFailure {
+        RankFailure {
+            rank: self.rank,
+            what,
+        }
+    }
+}
+
+/// Dropping it finalizes MPI (`MPI_Finalize`, which waits for every rank to
+/// finalize too) — except while this thread panics: the other ranks may be
+/// waiting in a collective this rank will never join, so it aborts the whole
+/// run instead ([`MpiTransport::abort`] with code 101, a panic's exit code).
+impl Drop for MpiTransport {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!(
+                "rank {}: panicked with MPI initialized: aborting every rank",
+                self.rank
+            );
+            self.abort(PANIC_EXIT_CODE);
+        }
+    }
+}
+
+/// The exit code of a Rust program that panicked.
+const PANIC_EXIT_CODE: i32 = 101;
+
+impl Transport for MpiTransport {
+    fn rank(&self) -> usize {
+        self.rank
+    }
+
+    fn size(&self) -> usize {
+        self.size
+    }
+
+    /// **Collective**, made of two nonblocking MPI collectives, each
+    /// completed by polling: an `MPI_Iallgather` of every rank's length (one
+    /// `u64` each), then an `MPI_Iallgatherv` of the bytes. Every rank learns
+    /// all lengths before the second, so all agree on whether it can go on:
+    /// MPI counts are C `int`s, and a gather of 2 GiB or more in all is an
+    /// error on every rank alike.
+    fn all_gather(&self, mine: Vec<u8>) -> Result<Vec<Vec<u8>>, RankFailure> {
+        let _collective = self
+            .collective
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let size = self.size;
+
+        // Collective 1: the lengths.
+        let my_len = mine.len() as u64;
+        let mut lens = vec![0u64; size];
+        mpi::request::scope(|scope| {
+            let request =
+                self.mpi_call()
+                    .world()
+                    .immediate_all_gather_into(scope, &my_len, &mut lens[..]);
+            self.complete(request);
+        });
+
+        let mut counts: Vec<Count> = Vec::with_capacity(size);
+        let mut displs: Vec<Count> = Vec::with_capacity(size);
+        let mut total: Count = 0;
+        for (j, &len) in lens.iter().enumerate() {
+            let count = Count::try_from(len)
+                .ok()
+                .filter(|&c| total.checked_add(c).is_some())
+                .ok_or_else(|| {
+                    self.failure(format!(
+                        "all-gather too large for MPI: rank {j} sends {len} bytes, \
+                         {total} bytes before it (the total must stay below 2 GiB)"
+                    ))
+                })?;
+            counts.push(count);
+            displs.push(total);
+            total += count;
+        }
+
+        // Collective 2: the bytes, each rank's at its displacement. Skipped
+        // on every rank alike when nobody sends a byte: OpenMPI rejects an
+        // all-gather into an empty buffer (MPI_ERR_ARG).
+        let mut all = vec![0u8; total as usize];
+        if total > 0 {
+            let mut partition = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
+            mpi::request::scope(|scope| {
+                let request = self.mpi_call().world().immediate_all_gather_varcount_into(
+                    scope,
+                    &mine[..],
+                    &mut partition,
+                );
+                self.complete(request);
+            });
+        }
+
+        let peers = size.saturating_sub(1) as u64;
+        self.sent.add(peers, peers * my_len);
+
+        let mut parts: Vec<Vec<u8>> = counts
+            .iter()
+            .zip(&displs)
+            .map(|(&c, &d)| all[d as usize..(d + c) as usize].to_vec())
+            .collect();
+        parts[self.rank] = mine;
+        Ok(parts)
+    }
+
+    fn traffic(&self) -> Traffic {
+        self.sent.total()
+    }
+}
+
+/// Waiting between polls: a few spins first (a collective among ranks on
+/// one machine often completes within microseconds), then yields, then
+/// sleeps that double up to [`Backoff::MAX_SLEEP`].
+#[derive(Default)]
+struct Backoff {
+    polls: u32,
+    sleep: Option<Duration>,
+}
+
+impl Backoff {
+    const SPINS: u32 = 16;
+    const YIELDS: u32 = 16;
+    const FIRST_SLEEP: Duration = Duration::from_micros(10);
+    const MAX_SLEEP: Duration = Duration::from_millis(1);
+
+    fn snooze(&mut self) {
+        self.polls = self.polls.saturating_add(1);
+        if self.polls <= Self::SPINS {
+            for _ in 0..(1 << self.polls.min(6)) {
+                std::hint::spin_loop();
+            }
+        } else if self.polls <= Self::SPINS + Self::YIELDS {
+            std::thread::yield_now();
+        } else {
+            let sleep = self
+                .sleep
+                .map_or(Self::FIRST_SLEEP, |s| (s * 2).min(Self::MAX_SLEEP));
+            self.sleep = Some(sleep);
+            std::thread::sleep(sleep);
+        }
+    }
+}

@@ -1,0 +1,277 @@
+#![cfg(feature = "mpi")]
+//! `MpiTransport` on real MPI ranks.
+//!
+//! MPI can be initialized once per process, so each test runs twice: as the
+//! parent (no `WEFT_MPI_CHILD` in the environment) it starts
+//! `mpirun -n 3 THIS_TEST_BINARY --exact TEST` and checks how that ended; as
+//! a child (under mpirun, `WEFT_MPI_CHILD=1`) it is one rank.
+
+use std::path::PathBuf;
+use std::process::{Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use weft_par::ranks::{MpiTransport, Transport};
+
+const RANKS: usize = 3;
+/// An mpirun still running after this is killed, and the test fails.
+const TIMEOUT: Duration = Duration::from_secs(120);
+
+fn is_child() -> bool {
+    std::env::var_os("WEFT_MPI_CHILD").is_some()
+}
+
+/// How an mpirun of this binary's test `test` on [`RANKS`] ranks ended.
+struct Run {
+    /// `None`: it ran past [`TIMEOUT`] and was killed.
+    status: Option<ExitStatus>,
+    stdout: String,
+    stderr: String,
+}
+
+impl Run {
+    fn report(&self) -> String {
+        format!(
+            "mpirun: {}\n--- stdout ---\n{}\n--- stderr ---\n{}",
+            match self.status {
+                Some(s) => format!("{s}"),
+                None => format!("killed after {TIMEOUT:?}"),
+            },
+            tail(&self.stdout),
+            tail(&self.stderr)
+        )
+    }
+}
+
+fn tail(s: &str) -> &str {
+    const KEEP: usize = 8000;
+    if s.len() <= KEEP {
+        return s;
+    }
+    let mut start = s.len() - KEEP;
+    while !s.is_char_boundary(start) {
+        start += 1;
+    }
+    &s[start..]
+}
+
+/// Runs this binary's test `test` on [`RANKS`] ranks under mpirun, with the
+/// environment OpenMPI needs here (set for the child, whatever the caller's
+/// environment has): root allowed, more ranks than cores allowed, no
+/// single-copy mechanism (containers forbid it).
+fn mpirun(test: &str) -> Run {
+    let exe = std::env::current_exe().expect("the test binary's path");
+    let dir = std::env::temp_dir();
+    let stem = format!("weft-mpi-{}-{test}", std::process::id());
+    let out_path: PathBuf = dir.join(format!("{stem}.out"));
+    let err_path: PathBuf = dir.join(format!("{stem}.err"));
+    // Output goes to files, not pipes: a rank left behind by a killed mpirun
+    // cannot keep the parent waiting for the pipe to close.
+    let out = std::fs::File::create(&out_path).expect("create stdout file");
+    let err = std::fs::File::create(&err_path).expect("create stderr file");
+    let mpirun = std::env::var_os("WEFT_MPIRUN").unwrap_or_else(|| "mpirun".into());
+    let mut child = Command::new(&mpirun)
+        .args(["-n", &RANKS.to_string(), "--bind-to", "none"])
+        .arg(&exe)
+        .args(["--exact", test, "--nocapture", "--test-threads", "1"])
+        .env("WEFT_MPI_CHILD", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
+        .env("OMPI_MCA_btl_vader_single_copy_mechanism", "none")
+        .env("RUST_BACKTRACE", "1")
+        .stdin(Stdio::null())
+        .stdout(out)
+        .stderr(err)
+        .spawn()
+        .unwrap_or_else(|e| panic!("cannot start {mpirun:?} (is OpenMPI installed?): {e}"));
+
+    let started = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait for mpirun") {
+            break Some(status);
+        }
+        if started.elapsed() > TIMEOUT {
+            // SIGTERM first: mpirun then ends its ranks; SIGKILL if it won't.
+            let _ = Command::new("kill")
+                .args(["-TERM", &child.id().to_string()])
+                .status();
+            let grace = Instant::now();
+            while grace.elapsed() < Duration::from_secs(10) {
+                if child.try_wait().ok().flatten().is_some() {
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(100));
+            }
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let read = |p: &PathBuf| {
+        let s = String::from_utf8_lossy(&std::fs::read(p).unwrap_or_default()).into_owned();
+        let _ = std::fs::remove_file(p);
+        s
+    };
+    Run {
+        status,
+        stdout: read(&out_path),
+        stderr: read(&err_path),
+    }
+}
+
+/// Rank `rank`'s part in round `round`: lengths differ by rank and round,
+/// and over the rounds every rank sends an empty part and one of about 1 MB.
+fn part(rank: usize, round: usize) -> Vec<u8> {
+    let len = match (rank + round) % 5 {
+        0 => 0,
+        1 => 1_000_003 + rank,
+        2 => 1 + 17 * round + rank,
+        3 => 4096 * (rank + 1) + round,
+        _ => 65_537 - rank,
+    };
+    (0..len)
+        .map(|i| (i.wrapping_mul(31) ^ rank.wrapping_mul(97) ^ round.wrapping_mul(13)) as u8)
+        .collect()
+}
+
+const ROUNDS: usize = 20;
+
+#[test]
+fn all_gather_over_mpi_on_three_ranks() {
+    if !is_child() {
+        let run = mpirun("all_gather_over_mpi_on_three_ranks");
+        assert!(run.status.is_some_and(|s| s.success()), "{}", run.report());
+        for rank in 0..RANKS {
+            assert!(
+                run.stdout
+                    .contains(&format!("rank {rank}/{RANKS}: {ROUNDS} rounds ok")),
+                "rank {rank} did not report\n{}",
+                run.report()
+            );
+        }
+        return;
+    }
+
+    let transport = MpiTransport::init().expect("initialize MPI");
+    assert!(
+        MpiTransport::init().is_err(),
+        "MPI must not initialize twice"
+    );
+    let (rank, size) = (transport.rank(), transport.size());
+    assert_eq!(size, RANKS);
+    assert!(rank < size);
+
+    let mut bytes_sent = 0u64;
+    for round in 0..ROUNDS {
+        let mine = part(rank, round);
+        bytes_sent += (size as u64 - 1) * mine.len() as u64;
+        let all = transport.all_gather(mine).expect("all_gather");
+        assert_eq!(all.len(), size, "round {round}");
+        for (j, got) in all.iter().enumerate() {
+            let want = part(j, round);
+            assert!(
+                got == &want,
+                "rank {rank}, round {round}: rank {j}'s part differs ({} bytes, want {})",
+                got.len(),
+                want.len()
+            );
+        }
+    }
+    // Every rank saw an empty part and a 1 MB one.
+    assert!((0..ROUNDS).any(|r| part(rank, r).is_empty()));
+    assert!((0..ROUNDS).any(|r| part(rank, r).len() > 1_000_000));
+
+    // A round in which nobody sends a byte (OpenMPI refuses an all-gather
+    // into an empty buffer; the transport must not make one).
+    let nothing = transport.all_gather(Vec::new()).expect("all-empty round");
+    assert_eq!(nothing, vec![Vec::<u8>::new(); size]);
+
+    let traffic = transport.traffic();
+    assert_eq!(traffic.messages, ((ROUNDS + 1) * (size - 1)) as u64);
+    assert_eq!(traffic.bytes, bytes_sent);
+
+    // From another thread too (the thread level is Serialized, not Funneled).
+    let from_thread = std::thread::scope(|s| {
+        s.spawn(|| transport.all_gather(vec![rank as u8; rank]))
+            .join()
+            .expect("all_gather thread")
+    })
+    .expect("all_gather from a spawned thread");
+    assert_eq!(
+        from_thread,
+        (0..size).map(|j| vec![j as u8; j]).collect::<Vec<_>>()
+    );
+
+    transport.barrier();
+    println!("rank {rank}/{size}: {ROUNDS} rounds ok");
+    drop(transport);
+}
+
+#[test]
+fn abort_on_one_rank_ends_every_rank() {
+    if !is_child() {
+        let run = mpirun("abort_on_one_rank_ends_every_rank");
+        let status = run
+            .status
+            .unwrap_or_else(|| panic!("mpirun hung after a rank aborted\n{}", run.report()));
+        assert!(!status.success(), "{}", run.report());
+        // OpenMPI's mpirun exits with the code the aborting rank gave.
+        assert_eq!(status.code(), Some(3), "{}", run.report());
+        assert!(
+            !run.stdout.contains("returned after the abort"),
+            "{}",
+            run.report()
+        );
+        return;
+    }
+
+    let transport = MpiTransport::init().expect("initialize MPI");
+    let rank = transport.rank();
+    let all = transport.all_gather(vec![rank as u8]).expect("all_gather");
+    assert_eq!(all, vec![vec![0], vec![1], vec![2]]);
+    if rank == 1 {
+        // Let the others get into their next collective first.
+        std::thread::sleep(Duration::from_millis(300));
+        transport.abort(3);
+    }
+    // Rank 1 never joins this one: only the abort can end it.
+    let result = transport.all_gather(vec![rank as u8]);
+    println!("rank {rank}: all_gather returned after the abort: {result:?}");
+    std::process::exit(0);
+}
+
+#[test]
+fn a_panicking_rank_ends_every_rank() {
+    if !is_child() {
+        let run = mpirun("a_panicking_rank_ends_every_rank");
+        let status = run
+            .status
+            .unwrap_or_else(|| panic!("mpirun hung after a rank panicked\n{}", run.report()));
+        assert!(!status.success(), "{}", run.report());
+        assert!(
+            run.stderr.contains("rank 2 panics on purpose"),
+            "{}",
+            run.report()
+        );
+        assert!(
+            !run.stdout.contains("returned after the panic"),
+            "{}",
+            run.report()
+        );
+        return;
+    }
+
+    let transport = MpiTransport::init().expect("initialize MPI");
+    let rank = transport.rank();
+    transport.all_gather(vec![rank as u8]).expect("all_gather");
+    if rank == 2 {
+        std::thread::sleep(Duration::from_millis(300));
+        // Unwinding drops the transport: that must abort every rank, not
+        // finalize (which would wait for the others, who wait for rank 2).
+        panic!("rank 2 panics on purpose");
+    }
+    let result = transport.all_gather(vec![rank as u8]);
+    println!("rank {rank}: all_gather returned after the panic: {result:?}");
+    std::process::exit(0);
+}
