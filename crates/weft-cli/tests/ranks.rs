@@ -291,7 +291,10 @@ mod mpi {
         let started = Instant::now();
         // Wait for a checkpoint, then kill rank 1.
         loop {
-            assert!(started.elapsed() < Duration::from_secs(120), "no checkpoint");
+            assert!(
+                started.elapsed() < Duration::from_secs(120),
+                "no checkpoint"
+            );
             let named = std::fs::read_to_string(&manifest)
                 .ok()
                 .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
@@ -323,7 +326,10 @@ mod mpi {
         let ck = &m["last_checkpoint"];
         assert!(ck["window"].as_u64().unwrap() >= 2, "{m}");
         // The checkpoint it names is good: the run resumes from it.
-        let s = summary(&resume(dir.path(), &["--set", "time.end=0.24", "--threads", "2"]));
+        let s = summary(&resume(
+            dir.path(),
+            &["--set", "time.end=0.24", "--threads", "2"],
+        ));
         assert_eq!(s["state_hash"], FIXTURE_HASH);
     }
 }

@@ -93,13 +93,17 @@ fn ranks_match_serial() {
     let expected = BroadPhase::default().candidates(&tris, &inv_mass, &traj, 0.3 * h);
     assert!(expected.len() > 1_000, "{} candidates", expected.len());
     for ranks in 1..=3 {
-        let got = weft_par::ranks::in_process(ranks, |_| Serial, |exec| {
-            let mut bp = BroadPhase::default();
-            let keys = bp
-                .candidates_on(&exec, &tris, &inv_mass, &traj, 0.3 * h)
-                .unwrap();
-            (keys, exec.traffic().messages)
-        });
+        let got = weft_par::ranks::in_process(
+            ranks,
+            |_| Serial,
+            |exec| {
+                let mut bp = BroadPhase::default();
+                let keys = bp
+                    .candidates_on(&exec, &tris, &inv_mass, &traj, 0.3 * h)
+                    .unwrap();
+                (keys, exec.traffic().messages)
+            },
+        );
         for (rank, (keys, messages)) in got.into_iter().enumerate() {
             assert_eq!(keys, expected, "rank {rank} of {ranks}");
             assert_eq!(messages > 0, ranks > 1, "rank {rank} of {ranks}");

@@ -107,11 +107,17 @@ fn folded(res: usize, steps: u64) -> (Vec<[u32; 3]>, Vec<f64>, Trajectories, f64
 
 fn time<E: Executor>(exec: &E, tris: &[[u32; 3]], m: &[f64], traj: &Trajectories, inflate: f64) {
     let mut bp = BroadPhase::default();
-    let mut n = bp.candidates_on(exec, tris, m, traj, inflate).unwrap().len();
+    let mut n = bp
+        .candidates_on(exec, tris, m, traj, inflate)
+        .unwrap()
+        .len();
     let mut best = f64::INFINITY;
     for _ in 0..7 {
         let t = Instant::now();
-        n = bp.candidates_on(exec, tris, m, traj, inflate).unwrap().len();
+        n = bp
+            .candidates_on(exec, tris, m, traj, inflate)
+            .unwrap()
+            .len();
         best = best.min(t.elapsed().as_secs_f64());
     }
     println!(

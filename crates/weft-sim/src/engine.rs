@@ -235,6 +235,26 @@ pub struct Engine<E: Executor = Serial> {
     interrupt: Option<Arc<AtomicBool>>,
     /// Narrow-phase cost per partition pair, measured in the last pass.
     narrow_costs: CostModel,
+    /// Over ranks: measured narrow-phase seconds per rank, since the start.
+    pub narrow_load: NarrowLoad,
+}
+
+/// Narrow-phase work per rank (measured task seconds, summed over passes):
+/// as placed by the balancer, and as it would have fallen with every task on
+/// the home rank of its first partition (no balancer). Empty on one rank.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NarrowLoad {
+    pub balanced: Vec<f64>,
+    pub home_only: Vec<f64>,
+}
+
+impl NarrowLoad {
+    /// max / mean of `loads` (1 is perfect balance; `None` without work).
+    pub fn imbalance(loads: &[f64]) -> Option<f64> {
+        let total: f64 = loads.iter().sum();
+        let max = loads.iter().copied().fold(0.0, f64::max);
+        (total > 0.0).then(|| max * loads.len() as f64 / total)
+    }
 }
 
 impl<E: Executor> Engine<E> {
@@ -265,6 +285,7 @@ impl<E: Executor> Engine<E> {
             ccd: CcdStats::default(),
             interrupt: None,
             narrow_costs: CostModel::default(),
+            narrow_load: NarrowLoad::default(),
         };
         engine.check_initial_state()?;
         Ok(engine)
@@ -1007,8 +1028,8 @@ impl<E: Executor> Engine<E> {
         let order = tasks.by_load();
         let ranks = self.exec.ranks();
         let mut owner = vec![0u32; order.len()];
+        let home = w.internal.home_ranks(ranks);
         if ranks > 1 {
-            let home = w.internal.home_ranks(ranks);
             let by_load: Vec<_> = order.iter().map(|&t| tasks.tasks[t].clone()).collect();
             let (assigned, _) = locality_aware(&by_load, ranks, &|p| home[p as usize] as usize);
             for (r, mine) in assigned.iter().enumerate() {
@@ -1041,9 +1062,21 @@ impl<E: Executor> Engine<E> {
         self.totals.narrow_queries += candidates.len() as u64;
         let mut reported = Vec::new();
         let mut measured = Vec::with_capacity(answers.len());
-        for (r, stats, m) in answers {
+        let load = &mut self.narrow_load;
+        if ranks > 1 {
+            load.balanced.resize(ranks, 0.0);
+            load.home_only.resize(ranks, 0.0);
+        }
+        for (n, (r, stats, m)) in answers.into_iter().enumerate() {
             reported.extend(r);
             self.ccd.merge(&stats);
+            if ranks > 1 {
+                let (a, b) = m.0;
+                let first = if a != weft_core::NONE { a } else { b };
+                let home_rank = home.get(first as usize).map_or(0, |&r| r as usize);
+                load.balanced[owner[n] as usize] += m.1;
+                load.home_only[home_rank] += m.1;
+            }
             measured.push(m);
         }
         costs.record(measured);

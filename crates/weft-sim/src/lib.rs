@@ -48,7 +48,7 @@ pub mod world;
 
 pub use config::{ContactConfig, LimitsConfig, TimeConfig};
 pub use diagnostics::{WindowStats, WindowTiming};
-pub use engine::{Engine, RunTotals};
+pub use engine::{Engine, NarrowLoad, RunTotals};
 pub use error::SimError;
 pub use executor::{CommError, Executor, Message, Serial, Traffic};
 pub use state::EngineState;

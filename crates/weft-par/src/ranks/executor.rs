@@ -42,7 +42,10 @@ impl<T: Transport, E: Executor> Ranks<T, E> {
 
     fn encode<R: serde::Serialize + ?Sized>(&self, value: &R) -> Result<Vec<u8>, CommError> {
         postcard::to_allocvec(value).map_err(|e| {
-            CommError(format!("rank {}: cannot encode a message: {e}", self.rank()))
+            CommError(format!(
+                "rank {}: cannot encode a message: {e}",
+                self.rank()
+            ))
         })
     }
 

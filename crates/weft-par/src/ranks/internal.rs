@@ -26,7 +26,6 @@ use weft_sim::World;
 use super::plan::RankPlan;
 use super::transport::Traffic;
 
-
 enum Payload {
     /// (x, v) of the sender's listed vertices.
     State(Vec<[DVec3; 2]>),

@@ -112,10 +112,12 @@ impl ChannelTransport {
     /// `ranks` connected transports, one per rank (index = rank).
     pub fn connected(ranks: usize) -> Vec<ChannelTransport> {
         let ranks = ranks.max(1);
-        let mut to: Vec<Vec<Option<Sender<Vec<u8>>>>> =
-            (0..ranks).map(|_| (0..ranks).map(|_| None).collect()).collect();
-        let mut from: Vec<Vec<Option<Inbox>>> =
-            (0..ranks).map(|_| (0..ranks).map(|_| None).collect()).collect();
+        let mut to: Vec<Vec<Option<Sender<Vec<u8>>>>> = (0..ranks)
+            .map(|_| (0..ranks).map(|_| None).collect())
+            .collect();
+        let mut from: Vec<Vec<Option<Inbox>>> = (0..ranks)
+            .map(|_| (0..ranks).map(|_| None).collect())
+            .collect();
         for a in 0..ranks {
             for b in 0..ranks {
                 if a != b {

@@ -519,8 +519,7 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
                 active: stats.active_stencils,
                 depth: stats.max_depth,
             });
-            if every > 0 && engine.world.window_index % every == 0 && engine.world.tick < end_tick
-            {
+            if every > 0 && engine.world.window_index % every == 0 && engine.world.tick < end_tick {
                 manifest.last_checkpoint = Some(saver.save(&engine, outputs)?);
                 manifest.write(out)?;
             }
@@ -528,7 +527,11 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
         let stop = job.stop.requested();
         if engine.executor().any_rank(stop)? {
             // A rank that was not asked itself names the request it joined.
-            stopped_by = Some(job.stop.reason().unwrap_or("a stop request on another rank"));
+            stopped_by = Some(
+                job.stop
+                    .reason()
+                    .unwrap_or("a stop request on another rank"),
+            );
             break;
         }
     }

@@ -25,9 +25,14 @@ use super::{execute, new_job, prepare, write_trace, RunArgs};
 
 /// Whether this process was started by an MPI launcher (`mpirun`, `srun`).
 pub fn launched() -> bool {
-    ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK", "MPI_LOCALNRANKS"]
-        .iter()
-        .any(|v| std::env::var_os(v).is_some())
+    [
+        "OMPI_COMM_WORLD_SIZE",
+        "PMI_SIZE",
+        "PMIX_RANK",
+        "MPI_LOCALNRANKS",
+    ]
+    .iter()
+    .any(|v| std::env::var_os(v).is_some())
 }
 
 /// `weft run` as one MPI rank.
@@ -102,4 +107,3 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
         }
     }
 }
-
