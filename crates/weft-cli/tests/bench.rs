@@ -251,3 +251,57 @@ fn missing_checkpoint_and_bad_options_are_errors() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("junk.wckp"), "{err}");
 }
+
+#[test]
+fn bench_over_ranks_reports_traffic_and_narrow_imbalance() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ck = small_checkpoint(tmp.path(), "150", "0.1");
+    let crumple = scene("crumple.toml");
+    let o = weft(
+        tmp.path(),
+        &[
+            "bench",
+            crumple.to_str().unwrap(),
+            "--size",
+            "150",
+            "--checkpoint",
+            ck.to_str().unwrap(),
+            "--windows",
+            "2",
+            "--repeats",
+            "1",
+            "--threads",
+            "1",
+            "--ranks",
+            "1,3",
+            "--json",
+        ],
+    );
+    let err = stderr(&o);
+    assert!(o.status.success(), "bench failed: {err}");
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("with the balancer"), "{out}");
+    let j = last_json(&o);
+    assert_eq!(j["deterministic"], true, "same bits on 1 and 3 ranks");
+    let results = j["results"].as_array().unwrap();
+    assert_eq!(results.len(), 2);
+    let (one, three) = (&results[0], &results[1]);
+    assert_eq!(one["ranks"], 1);
+    assert_eq!(one["per_rank"].as_array().unwrap().len(), 1);
+    assert!(one["narrow_imbalance"].is_null());
+    assert_eq!(one["per_rank"][0]["messages_per_window"], 0.0);
+    assert_eq!(three["ranks"], 3);
+    assert_eq!(three["executor"], "ranks(3) × threads(1)");
+    let ranks = three["per_rank"].as_array().unwrap();
+    assert_eq!(ranks.len(), 3);
+    for r in ranks {
+        positive(r, "messages_per_window");
+        positive(r, "bytes_per_window");
+        positive(&r["stage_seconds_per_window"], "events");
+    }
+    // max / mean of three ranks' loads: between 1 and 3.
+    for key in ["narrow_imbalance", "narrow_imbalance_home_only"] {
+        let x = positive(three, key);
+        assert!((1.0..=3.0 + 1e-9).contains(&x), "{key} = {x}");
+    }
+}

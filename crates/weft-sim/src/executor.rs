@@ -99,6 +99,19 @@ pub trait Executor: Sync {
         self.for_each_chunk(data, bounds, task);
         Ok(())
     }
+
+    /// **Collective over ranks.** [`Executor::chunks_on_ranks`] for vectors,
+    /// sent as their raw bits (eight little-endian bytes per coordinate):
+    /// the internal forces' output slots, every internal tick.
+    fn vectors_on_ranks(
+        &self,
+        data: &mut [glam::DVec3],
+        bounds: &[usize],
+        task: &(dyn Fn(usize, &mut [glam::DVec3]) + Sync),
+    ) -> Result<(), CommError> {
+        self.for_each_chunk(data, bounds, task);
+        Ok(())
+    }
 }
 
 /// Places consecutive items of the given sizes on `ranks` ranks in

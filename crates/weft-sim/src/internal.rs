@@ -208,7 +208,7 @@ impl InternalForces {
     /// per element corner into `out` (partition-major slots).
     ///
     /// Over ranks, each rank evaluates the partitions placed on it and every
-    /// rank receives all slots ([`Executor::chunks_on_ranks`]).
+    /// rank receives all slots ([`Executor::vectors_on_ranks`]).
     pub fn evaluate<E: Executor>(
         &self,
         exec: &E,
@@ -217,7 +217,7 @@ impl InternalForces {
         v: &[DVec3],
         out: &mut [DVec3],
     ) -> Result<(), crate::CommError> {
-        exec.chunks_on_ranks(out, bounds, &|p, chunk: &mut [DVec3]| {
+        exec.vectors_on_ranks(out, bounds, &|p, chunk: &mut [DVec3]| {
             let _span = crate::trace::span_with("partition", "partition", p as u64);
             self.evaluate_partition(p, x, v, chunk);
         })

@@ -14,6 +14,7 @@
 //!
 //! Within a rank, the rank's own share runs on a local executor (threads).
 
+use glam::DVec3;
 use weft_sim::{CommError, Executor, Message, Serial};
 
 use super::transport::{ChannelTransport, Traffic, Transport};
@@ -56,6 +57,55 @@ impl<T: Transport, E: Executor> Ranks<T, E> {
                 self.rank()
             ))
         })
+    }
+
+    /// Runs `task` on this rank's chunks (placed by size), then hands every
+    /// rank's chunks to every rank: `encode` writes this rank's chunks into
+    /// one message, `decode` writes a peer's message into its chunks
+    /// (returning false when it does not fit).
+    fn exchange_chunks<D: Send>(
+        &self,
+        data: &mut [D],
+        bounds: &[usize],
+        task: &(dyn Fn(usize, &mut [D]) + Sync),
+        encode: &dyn Fn(&[&[D]]) -> Result<Vec<u8>, CommError>,
+        decode: &dyn Fn(&[u8], &mut [&mut [D]]) -> Result<bool, CommError>,
+    ) -> Result<(), CommError> {
+        let chunks = bounds.len().saturating_sub(1);
+        let sizes = (0..chunks).map(|k| bounds[k + 1] - bounds[k]);
+        let owner = weft_sim::executor::place_by_size(sizes, self.transport.size());
+        let me = self.rank() as u32;
+        self.local.for_each_chunk(data, bounds, &|k, chunk| {
+            if owner[k] == me {
+                task(k, chunk);
+            }
+        });
+        if self.transport.size() == 1 {
+            return Ok(());
+        }
+        // My chunks, in chunk order.
+        let mine: Vec<&[D]> = (0..chunks)
+            .filter(|&k| owner[k] == me)
+            .map(|k| &data[bounds[k]..bounds[k + 1]])
+            .collect();
+        let parts = self.transport.all_gather(encode(&mine)?)?;
+        let mut slices = weft_sim::executor::split_chunks(data, bounds);
+        for (j, part) in parts.iter().enumerate() {
+            if j == me as usize {
+                continue;
+            }
+            let mut theirs: Vec<&mut [D]> = slices
+                .iter_mut()
+                .filter(|(k, _)| owner[*k] as usize == j)
+                .map(|(_, c)| &mut **c)
+                .collect();
+            if !decode(part, &mut theirs)? {
+                return Err(CommError(format!(
+                    "rank {me}: rank {j}'s chunks do not fit the placement"
+                )));
+            }
+        }
+        Ok(())
     }
 
     fn check_owner(&self, n: usize, owner: &[u32]) -> Result<(), CommError> {
@@ -113,6 +163,9 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         f: &(dyn Fn(usize) -> R + Sync),
     ) -> Result<Vec<R>, CommError> {
         self.check_owner(n, owner)?;
+        if self.transport.size() == 1 {
+            return Ok(self.local.map(n, f));
+        }
         let me = self.rank() as u32;
         let mine: Vec<usize> = (0..n).filter(|&i| owner[i] == me).collect();
         let results = self.local.map(mine.len(), &|k| f(mine[k]));
@@ -153,44 +206,65 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         bounds: &[usize],
         task: &(dyn Fn(usize, &mut [D]) + Sync),
     ) -> Result<(), CommError> {
-        let chunks = bounds.len().saturating_sub(1);
-        let sizes = (0..chunks).map(|k| bounds[k + 1] - bounds[k]);
-        let owner = weft_sim::executor::place_by_size(sizes, self.transport.size());
-        let me = self.rank() as u32;
-        self.local.for_each_chunk(data, bounds, &|k, chunk| {
-            if owner[k] == me {
-                task(k, chunk);
-            }
-        });
-        // My chunks, concatenated in chunk order.
-        let mine: Vec<&[D]> = (0..chunks)
-            .filter(|&k| owner[k] == me)
-            .map(|k| &data[bounds[k]..bounds[k + 1]])
-            .collect();
-        let parts = self.transport.all_gather(self.encode(&mine)?)?;
-        for (j, part) in parts.iter().enumerate() {
-            if j == me as usize {
-                continue;
-            }
-            let theirs: Vec<usize> = (0..chunks).filter(|&k| owner[k] as usize == j).collect();
-            let values: Vec<Vec<D>> = self.decode(j, part)?;
-            let fits = values.len() == theirs.len()
-                && theirs
+        let encode = |mine: &[&[D]]| self.encode(mine);
+        let decode = |bytes: &[u8], theirs: &mut [&mut [D]]| -> Result<bool, CommError> {
+            let values: Vec<Vec<D>> = postcard::from_bytes(bytes).map_err(|e| {
+                CommError(format!("rank {}: a malformed message: {e}", self.rank()))
+            })?;
+            if values.len() != theirs.len()
+                || values
                     .iter()
-                    .zip(&values)
-                    .all(|(&k, v)| v.len() == bounds[k + 1] - bounds[k]);
-            if !fits {
-                return Err(CommError(format!(
-                    "rank {me}: rank {j}'s chunks do not fit the placement"
-                )));
+                    .zip(theirs.iter())
+                    .any(|(v, c)| v.len() != c.len())
+            {
+                return Ok(false);
             }
-            for (k, chunk) in theirs.into_iter().zip(values) {
-                for (slot, value) in data[bounds[k]..bounds[k + 1]].iter_mut().zip(chunk) {
+            for (chunk, values) in theirs.iter_mut().zip(values) {
+                for (slot, value) in chunk.iter_mut().zip(values) {
                     *slot = value;
                 }
             }
-        }
-        Ok(())
+            Ok(true)
+        };
+        self.exchange_chunks(data, bounds, task, &encode, &decode)
+    }
+
+    fn vectors_on_ranks(
+        &self,
+        data: &mut [DVec3],
+        bounds: &[usize],
+        task: &(dyn Fn(usize, &mut [DVec3]) + Sync),
+    ) -> Result<(), CommError> {
+        // Raw little-endian bits: exact, and far cheaper than a generic
+        // encoding for the hundreds of kilobytes of every internal tick.
+        let encode = |mine: &[&[DVec3]]| {
+            let n: usize = mine.iter().map(|c| c.len()).sum();
+            let mut bytes = Vec::with_capacity(24 * n);
+            for v in mine.iter().flat_map(|c| c.iter()) {
+                for x in v.to_array() {
+                    bytes.extend_from_slice(&x.to_le_bytes());
+                }
+            }
+            Ok(bytes)
+        };
+        let decode = |bytes: &[u8], theirs: &mut [&mut [DVec3]]| -> Result<bool, CommError> {
+            let n: usize = theirs.iter().map(|c| c.len()).sum();
+            if bytes.len() != 24 * n {
+                return Ok(false);
+            }
+            let mut words = bytes
+                .chunks_exact(8)
+                .map(|w| f64::from_le_bytes(w.try_into().expect("8 bytes")));
+            for slot in theirs.iter_mut().flat_map(|c| c.iter_mut()) {
+                let (x, y, z) = (words.next(), words.next(), words.next());
+                let (Some(x), Some(y), Some(z)) = (x, y, z) else {
+                    return Ok(false);
+                };
+                *slot = DVec3::new(x, y, z);
+            }
+            Ok(true)
+        };
+        self.exchange_chunks(data, bounds, task, &encode, &decode)
     }
 }
 
@@ -259,6 +333,29 @@ mod tests {
                         })
                         .unwrap();
                         let stop = r.any_rank(r.rank() == 2).unwrap();
+                        let mut vectors = vec![DVec3::NAN; 40];
+                        let vb = [0, 3, 20, 20, 40];
+                        r.vectors_on_ranks(&mut vectors, &vb, &|k, chunk: &mut [DVec3]| {
+                            for (j, v) in chunk.iter_mut().enumerate() {
+                                // -0.0 and a NaN payload must survive.
+                                *v = DVec3::new(
+                                    k as f64 + 0.25,
+                                    -0.0,
+                                    f64::from_bits(0x7ff8_0000_0000_0000 | j as u64),
+                                );
+                            }
+                        })
+                        .unwrap();
+                        assert!(vectors.iter().enumerate().all(|(i, v)| {
+                            let k = vb
+                                .windows(2)
+                                .position(|w| (w[0]..w[1]).contains(&i))
+                                .unwrap();
+                            let j = i - vb[k];
+                            v.x == k as f64 + 0.25
+                                && v.y.to_bits() == (-0.0f64).to_bits()
+                                && v.z.to_bits() == 0x7ff8_0000_0000_0000 | j as u64
+                        }));
                         (squares, calls.into_inner(), data, stop)
                     })
                 })

@@ -256,10 +256,15 @@ struct Backoff {
 }
 
 impl Backoff {
+    // The engine's collectives come every internal tick (about a
+    // millisecond of work apart): a peer is usually microseconds away, and a
+    // long sleep here would cost every rank that much per tick. So yield for
+    // a few milliseconds (cheap when the core has nothing else to run, fair
+    // when ranks share cores), and only then sleep, briefly.
     const SPINS: u32 = 16;
-    const YIELDS: u32 = 16;
-    const FIRST_SLEEP: Duration = Duration::from_micros(10);
-    const MAX_SLEEP: Duration = Duration::from_millis(1);
+    const YIELDS: u32 = 4096;
+    const FIRST_SLEEP: Duration = Duration::from_micros(20);
+    const MAX_SLEEP: Duration = Duration::from_micros(200);
 
     fn snooze(&mut self) {
         self.polls = self.polls.saturating_add(1);

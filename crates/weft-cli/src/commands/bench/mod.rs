@@ -11,6 +11,12 @@
 //! window, the state hash after the run (checked equal for every run and
 //! thread count), the process's peak memory per vertex and the machine's
 //! processor topology.
+//!
+//! Over ranks (`--ranks R,...` simulates them in this process; under
+//! `mpirun` they are MPI's) it also reports each rank's stage times, the
+//! messages and bytes each rank sends per window, and the narrow phase's load
+//! imbalance (max / mean of the measured per-rank seconds) as placed by the
+//! balancer and as it would be with every task on its home rank.
 
 pub mod machine;
 
@@ -24,7 +30,7 @@ use serde::Serialize;
 use weft_io::checkpoint::read_checkpoint;
 use weft_io::scene::load_scene;
 use weft_par::Threads;
-use weft_sim::{Engine, EngineState, Executor, Serial, World};
+use weft_sim::{Engine, EngineState, Executor, NarrowLoad, Serial, World};
 
 use super::run::{execute, scene_hash, signals::StopRequest, RunJob, CHECKPOINT_FILE};
 use machine::Topology;
@@ -67,6 +73,11 @@ pub struct BenchArgs {
     /// [default: 1 and one per available logical CPU].
     #[arg(long, value_name = "N,...", value_delimiter = ',')]
     pub threads: Vec<usize>,
+    /// Rank counts to run, comma separated: ranks simulated in this process,
+    /// each with the listed thread counts [default: 1]. Under mpirun the rank
+    /// count is MPI's; do not give this option then.
+    #[arg(long, value_name = "R,...", value_delimiter = ',')]
+    pub ranks: Vec<usize>,
     /// Runs per thread count; the report holds their median.
     #[arg(long, value_name = "N", default_value_t = 5)]
     pub repeats: usize,
@@ -99,6 +110,32 @@ struct Sample {
     active_stencils: u64,
     max_depth: u32,
     state_hash: String,
+    /// Each rank's own figures (one entry on one rank).
+    ranks: Vec<RankSample>,
+    /// Measured narrow-phase seconds per rank, balanced and home-only.
+    narrow_load: NarrowLoad,
+}
+
+/// One rank's totals over a run.
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
+struct RankSample {
+    wall: f64,
+    events: f64,
+    broad: f64,
+    narrow: f64,
+    commit: f64,
+    internal: f64,
+    messages: u64,
+    bytes: u64,
+}
+
+/// One rank's figures per window (median run).
+#[derive(Clone, Debug, Serialize)]
+pub struct RankFigures {
+    pub rank: usize,
+    pub stage_seconds_per_window: StageTimes,
+    pub messages_per_window: f64,
+    pub bytes_per_window: f64,
 }
 
 /// Seconds per window, median over the repeats.
@@ -114,9 +151,11 @@ pub struct StageTimes {
     pub other: f64,
 }
 
-/// The figures of one thread count.
+/// The figures of one rank count and thread count.
 #[derive(Clone, Debug, Serialize)]
 pub struct ThreadResult {
+    pub ranks: usize,
+    /// Threads per rank.
     pub threads: usize,
     pub executor: String,
     /// Median wall-clock seconds per window, and each run's.
@@ -132,10 +171,16 @@ pub struct ThreadResult {
     pub internal_stage_evaluations_per_core_second: f64,
     /// Narrow-phase queries (all passes) / narrow-stage seconds.
     pub narrow_queries_per_second: f64,
-    /// T(1) / T(n) and T(1) / (n · T(n)) from the medians (null without a
-    /// 1-thread run).
+    /// T(1) / T(n) and T(1) / (n · T(n)) from the medians, n = ranks ·
+    /// threads (null without a 1-rank 1-thread run).
     pub speedup: Option<f64>,
     pub parallel_efficiency: Option<f64>,
+    /// Over ranks: each rank's figures (the median run's), and the narrow
+    /// phase's load imbalance, max / mean of the per-rank measured seconds,
+    /// as the balancer placed the tasks and with each on its home rank.
+    pub per_rank: Vec<RankFigures>,
+    pub narrow_imbalance: Option<f64>,
+    pub narrow_imbalance_home_only: Option<f64>,
 }
 
 /// What `weft bench` reports.
@@ -179,7 +224,50 @@ pub struct BenchReport {
     pub results: Vec<ThreadResult>,
 }
 
+/// How the ranks of a bench run are made.
+#[derive(Clone, Copy)]
+enum Launch<'a> {
+    /// In this process: one memory, or ranks simulated on threads.
+    Local,
+    /// This process is one MPI rank.
+    #[cfg(feature = "mpi")]
+    Mpi(&'a weft_par::ranks::MpiTransport),
+    #[cfg(not(feature = "mpi"))]
+    #[allow(dead_code)]
+    Never(std::marker::PhantomData<&'a ()>),
+}
+
 pub fn run(a: BenchArgs) -> anyhow::Result<ExitCode> {
+    #[cfg(feature = "mpi")]
+    if super::run::mpi_launch::launched() {
+        use weft_par::ranks::Transport;
+        let transport = weft_par::ranks::MpiTransport::init()
+            .map_err(|e| anyhow::anyhow!("cannot start MPI: {e}"))?;
+        let rank = transport.rank();
+        return match bench(&a, Launch::Mpi(&transport)) {
+            Ok(code) => Ok(code),
+            // The ranks may be at different points: end them all.
+            Err(e) if transport.size() > 1 => {
+                eprintln!("error: on rank {rank}: {e:#}");
+                transport.abort(1)
+            }
+            Err(e) => Err(e),
+        };
+    }
+    bench(&a, Launch::Local)
+}
+
+fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
+    let (leader, mpi_ranks) = match launch {
+        Launch::Local => (true, None),
+        #[cfg(feature = "mpi")]
+        Launch::Mpi(t) => {
+            use weft_par::ranks::Transport;
+            (t.rank() == 0, Some(t.size()))
+        }
+        #[cfg(not(feature = "mpi"))]
+        Launch::Never(_) => unreachable!(),
+    };
     if a.windows == 0 {
         bail!("--windows must be at least 1");
     }
@@ -187,6 +275,16 @@ pub fn run(a: BenchArgs) -> anyhow::Result<ExitCode> {
         bail!("--repeats must be at least 1");
     }
     let threads = thread_counts(&a.threads)?;
+    let rank_list = match mpi_ranks {
+        Some(_) if !a.ranks.is_empty() => {
+            bail!("--ranks simulates ranks in one process; under mpirun the ranks are MPI's")
+        }
+        Some(_) if a.make_checkpoint => bail!(
+            "make the checkpoint without mpirun first (--make-checkpoint), then bench under mpirun"
+        ),
+        Some(n) => vec![n],
+        None => rank_counts(&a.ranks)?,
+    };
     let mut overrides = vec![
         format!("time.window={PUBLISHED_WINDOW}"),
         format!("time.steps_per_window={PUBLISHED_STEPS}"),
@@ -204,7 +302,7 @@ pub fn run(a: BenchArgs) -> anyhow::Result<ExitCode> {
     });
 
     if a.make_checkpoint {
-        make_checkpoint(&a, &overrides, &checkpoint, threads.iter().copied().max())?;
+        make_checkpoint(a, &overrides, &checkpoint, threads.iter().copied().max())?;
     } else if !checkpoint.exists() {
         bail!(
             "no checkpoint at {}; make one with\n  {} --make-checkpoint",
@@ -266,7 +364,12 @@ pub fn run(a: BenchArgs) -> anyhow::Result<ExitCode> {
         machine: Topology::this(),
         results: Vec::new(),
     };
-    eprintln!(
+    let say = |text: String| {
+        if leader {
+            eprintln!("{text}");
+        }
+    };
+    say(format!(
         "weft bench: {} — {} vertices, {} steps of {:.4e} s per window, from t = {:.6} s \
          ({} active stencils); {} windows × {} runs per thread count",
         report.scene,
@@ -277,34 +380,34 @@ pub fn run(a: BenchArgs) -> anyhow::Result<ExitCode> {
         report.start_active_stencils,
         a.windows,
         a.repeats
-    );
+    ));
 
     // The peak from here on: the benchmark runs, not the checkpoint's making.
     machine::reset_peak_rss();
-    let mut all: Vec<(usize, Vec<Sample>)> = Vec::new();
-    for &n in &threads {
-        let mut samples = Vec::with_capacity(a.repeats);
-        for r in 0..a.repeats {
-            let traced = a.trace.is_some() && Some(&n) == threads.last() && r + 1 == a.repeats;
-            weft_sim::trace::set_recording(traced);
-            let s = if n == 1 {
-                measure(world.clone(), Serial, start.clone(), a.windows)
-            } else {
-                let exec = Threads::new(n).context("cannot start the worker threads")?;
-                let (world, start) = (world.clone(), start.clone());
-                exec.clone()
-                    .install(move || measure(world, exec, start, a.windows))
+    let mut all: Vec<((usize, usize), Vec<Sample>)> = Vec::new();
+    let last = (rank_list.last().copied(), threads.last().copied());
+    for &ranks in &rank_list {
+        for &n in &threads {
+            let mut samples = Vec::with_capacity(a.repeats);
+            for r in 0..a.repeats {
+                let traced =
+                    a.trace.is_some() && (Some(ranks), Some(n)) == last && r + 1 == a.repeats;
+                weft_sim::trace::set_recording(traced);
+                let s = run_once(launch, ranks, n, &world, &start, a.windows)
+                    .with_context(|| format!("{ranks} rank(s) × {n} thread(s), run {}", r + 1))?;
+                say(format!(
+                    "weft bench: {ranks} rank(s) × {n} thread(s), run {}/{}: {:.4} s per window",
+                    r + 1,
+                    a.repeats,
+                    s.wall / a.windows as f64
+                ));
+                samples.push(s);
             }
-            .with_context(|| format!("{n} thread(s), run {}", r + 1))?;
-            eprintln!(
-                "weft bench: {n} thread(s), run {}/{}: {:.4} s per window",
-                r + 1,
-                a.repeats,
-                s.wall / a.windows as f64
-            );
-            samples.push(s);
+            all.push(((ranks, n), samples));
         }
-        all.push((n, samples));
+    }
+    if !leader {
+        return Ok(ExitCode::SUCCESS);
     }
     if let Some(path) = &a.trace {
         super::run::write_trace(path, &report.scene, false)?;
@@ -322,10 +425,10 @@ pub fn run(a: BenchArgs) -> anyhow::Result<ExitCode> {
     if !report.deterministic {
         let hashes: Vec<String> = all
             .iter()
-            .flat_map(|(n, s)| s.iter().map(move |s| format!("{n}: {}", s.state_hash)))
+            .flat_map(|((r, n), s)| s.iter().map(move |s| format!("{r}×{n}: {}", s.state_hash)))
             .collect();
         bail!(
-            "the runs ended in different states (thread count: state hash): {}",
+            "the runs ended in different states (ranks×threads: state hash): {}",
             hashes.join(", ")
         );
     }
@@ -350,6 +453,95 @@ fn thread_counts(given: &[usize]) -> anyhow::Result<Vec<usize>> {
         seen.push(n);
     }
     Ok(seen)
+}
+
+/// The rank counts to run: as given (each at least 1, no repeats), or 1.
+fn rank_counts(given: &[usize]) -> anyhow::Result<Vec<usize>> {
+    if given.is_empty() {
+        return Ok(vec![1]);
+    }
+    let mut seen = Vec::new();
+    for &n in given {
+        if !(1..=256).contains(&n) {
+            bail!("--ranks: rank counts must be 1 to 256 (got {n})");
+        }
+        if seen.contains(&n) {
+            bail!("--ranks: {n} is listed twice");
+        }
+        seen.push(n);
+    }
+    Ok(seen)
+}
+
+/// One run of `windows` windows on `ranks` ranks of `threads` threads each;
+/// the sample is rank 0's, with every rank's own figures in `ranks`.
+fn run_once(
+    launch: Launch<'_>,
+    ranks: usize,
+    threads: usize,
+    world: &World,
+    start: &EngineState,
+    windows: u64,
+) -> anyhow::Result<Sample> {
+    let pool = || Threads::new(threads).context("cannot start the worker threads");
+    match launch {
+        Launch::Local if ranks == 1 => {
+            if threads == 1 {
+                measure(world.clone(), Serial, start.clone(), windows)
+            } else {
+                let exec = pool()?;
+                let (world, start) = (world.clone(), start.clone());
+                exec.clone()
+                    .install(move || measure(world, exec, start, windows))
+            }
+        }
+        Launch::Local => {
+            let pools = (0..ranks).map(|_| pool()).collect::<Result<Vec<_>, _>>()?;
+            let results = weft_par::ranks::in_process(
+                ranks,
+                |r| pools[r].clone(),
+                |exec| {
+                    let (world, start) = (world.clone(), start.clone());
+                    exec.local()
+                        .clone()
+                        .install(move || measure(world, exec, start, windows))
+                },
+            );
+            let mut samples = results.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
+            if let Some(s) = samples
+                .iter()
+                .find(|s| s.state_hash != samples[0].state_hash)
+            {
+                bail!(
+                    "ranks ended in different states: {} and {}",
+                    samples[0].state_hash,
+                    s.state_hash
+                );
+            }
+            let every: Vec<RankSample> = samples.iter().flat_map(|s| s.ranks.clone()).collect();
+            let mut first = samples.swap_remove(0);
+            first.ranks = every;
+            Ok(first)
+        }
+        #[cfg(feature = "mpi")]
+        Launch::Mpi(t) => {
+            use weft_par::ranks::Transport;
+            let local = pool()?;
+            let exec = weft_par::Ranks::new(t, local.clone());
+            let (world, start) = (world.clone(), start.clone());
+            let mut s = local.install(move || measure(world, exec, start, windows))?;
+            // Collective: every rank's own figures to every rank.
+            let mine = postcard::to_allocvec(&s.ranks[0])?;
+            let parts = t.all_gather(mine).map_err(|e| anyhow::anyhow!("{e}"))?;
+            s.ranks = parts
+                .iter()
+                .map(|p| postcard::from_bytes(p))
+                .collect::<Result<_, _>>()?;
+            Ok(s)
+        }
+        #[cfg(not(feature = "mpi"))]
+        Launch::Never(_) => unreachable!(),
+    }
 }
 
 /// The command line of this process, for a message that suggests a variant.
@@ -445,6 +637,7 @@ fn measure<E: Executor>(
     let mut engine = Engine::new(world, exec)?;
     engine.restore(start)?;
     let queries_before = engine.totals.narrow_queries;
+    let traffic_before = engine.executor().traffic();
     let mut s = Sample::default();
     let clock = Instant::now();
     for _ in 0..windows {
@@ -467,6 +660,18 @@ fn measure<E: Executor>(
     s.wall = clock.elapsed().as_secs_f64();
     s.narrow_queries = engine.totals.narrow_queries - queries_before;
     s.state_hash = engine.state_hash();
+    let traffic = engine.executor().traffic();
+    s.ranks = vec![RankSample {
+        wall: s.wall,
+        events: s.events,
+        broad: s.broad,
+        narrow: s.narrow,
+        commit: s.commit,
+        internal: s.internal,
+        messages: traffic.messages - traffic_before.messages,
+        bytes: traffic.bytes - traffic_before.bytes,
+    }];
+    s.narrow_load = engine.narrow_load.clone();
     Ok(s)
 }
 
@@ -483,7 +688,7 @@ fn median(values: &[f64]) -> f64 {
 }
 
 /// Fills the report's figures from the samples of each thread count.
-fn summarize(r: &mut BenchReport, all: &[(usize, Vec<Sample>)]) {
+fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
     let first = &all[0].1[0];
     let windows = r.windows as f64;
     r.rollbacks_per_window = first.rollbacks as f64 / windows;
@@ -499,8 +704,9 @@ fn summarize(r: &mut BenchReport, all: &[(usize, Vec<Sample>)]) {
             && s.narrow_queries == first.narrow_queries
             && s.internal_evaluations == first.internal_evaluations
     });
-    for (n, samples) in all {
-        let n = *n;
+    for &((ranks, threads), ref samples) in all {
+        // Cores at work: every rank's threads.
+        let n = ranks * threads;
         let med = |f: &dyn Fn(&Sample) -> f64| median(&samples.iter().map(f).collect::<Vec<_>>());
         let runs: Vec<f64> = samples.iter().map(|s| s.wall / windows).collect();
         let wall = median(&runs);
@@ -511,12 +717,38 @@ fn summarize(r: &mut BenchReport, all: &[(usize, Vec<Sample>)]) {
         let internal = med(&|s| s.internal / windows);
         let other = med(&|s| (s.wall - s.events - s.broad - s.narrow - s.commit) / windows);
         let evals = first.internal_evaluations as f64;
+        let per_rank = (0..ranks)
+            .map(|k| {
+                let rm = |f: &dyn Fn(&RankSample) -> f64| med(&|s| f(&s.ranks[k]) / windows);
+                RankFigures {
+                    rank: k,
+                    stage_seconds_per_window: StageTimes {
+                        events: rm(&|x| x.events),
+                        broad: rm(&|x| x.broad),
+                        narrow: rm(&|x| x.narrow),
+                        commit: rm(&|x| x.commit),
+                        internal: rm(&|x| x.internal),
+                        other: rm(&|x| x.wall - x.events - x.broad - x.narrow - x.commit),
+                    },
+                    messages_per_window: rm(&|x| x.messages as f64),
+                    bytes_per_window: rm(&|x| x.bytes as f64),
+                }
+            })
+            .collect();
+        let imbalance = |f: &dyn Fn(&NarrowLoad) -> &[f64]| {
+            let v: Vec<f64> = samples
+                .iter()
+                .filter_map(|s| NarrowLoad::imbalance(f(&s.narrow_load)))
+                .collect();
+            (ranks > 1 && !v.is_empty()).then(|| median(&v))
+        };
         r.results.push(ThreadResult {
-            threads: n,
-            executor: if n == 1 {
-                "serial".into()
-            } else {
-                format!("threads({n})")
+            ranks,
+            threads,
+            executor: match (ranks, threads) {
+                (1, 1) => "serial".into(),
+                (1, t) => format!("threads({t})"),
+                (r, t) => format!("ranks({r}) × threads({t})"),
             },
             wall_seconds_per_window: wall,
             runs_wall_seconds_per_window: runs.clone(),
@@ -536,18 +768,21 @@ fn summarize(r: &mut BenchReport, all: &[(usize, Vec<Sample>)]) {
             narrow_queries_per_second: med(&|s| s.narrow_queries as f64 / s.narrow),
             speedup: None,
             parallel_efficiency: None,
+            per_rank,
+            narrow_imbalance: imbalance(&|l| &l.balanced),
+            narrow_imbalance_home_only: imbalance(&|l| &l.home_only),
         });
     }
     if let Some(t1) = r
         .results
         .iter()
-        .find(|t| t.threads == 1)
+        .find(|t| t.threads == 1 && t.ranks == 1)
         .map(|t| t.wall_seconds_per_window)
     {
         for t in &mut r.results {
             let speedup = t1 / t.wall_seconds_per_window;
             t.speedup = Some(speedup);
-            t.parallel_efficiency = Some(speedup / t.threads as f64);
+            t.parallel_efficiency = Some(speedup / (t.ranks * t.threads) as f64);
         }
     }
 }
@@ -623,7 +858,8 @@ fn table(r: &BenchReport) -> String {
     let _ = writeln!(s);
     let _ = writeln!(
         s,
-        "{:>7} {:>10} {:>8} {:>9} {:>8} {:>8} {:>8} {:>8} {:>12} {:>15} {:>12} {:>8} {:>10}",
+        "{:>5} {:>7} {:>10} {:>8} {:>9} {:>8} {:>8} {:>8} {:>8} {:>12} {:>15} {:>12} {:>8} {:>10}",
+        "ranks",
         "threads",
         "ms/window",
         "events",
@@ -642,7 +878,8 @@ fn table(r: &BenchReport) -> String {
         let st = &t.stage_seconds_per_window;
         let _ = writeln!(
             s,
-            "{:>7} {:>10} {:>8} {:>9} {:>8} {:>8} {:>8} {:>8} {:>12.4e} {:>15.4e} {:>12.4e} {:>8} {:>10}",
+            "{:>5} {:>7} {:>10} {:>8} {:>9} {:>8} {:>8} {:>8} {:>8} {:>12.4e} {:>15.4e} {:>12.4e} {:>8} {:>10}",
+            t.ranks,
             t.threads,
             ms(t.wall_seconds_per_window),
             ms(st.events),
@@ -659,14 +896,43 @@ fn table(r: &BenchReport) -> String {
                 .map_or("—".into(), |x| format!("{:.0} %", 100.0 * x)),
         );
     }
+    for t in r.results.iter().filter(|t| t.ranks > 1) {
+        let ratio = |x: Option<f64>| x.map_or("—".into(), |x| format!("{x:.2}"));
+        let _ = writeln!(
+            s,
+            "\n{} ranks × {} threads: narrow-phase imbalance (max / mean) {} with the balancer, \
+             {} with every task on its home rank",
+            t.ranks,
+            t.threads,
+            ratio(t.narrow_imbalance),
+            ratio(t.narrow_imbalance_home_only)
+        );
+        for k in &t.per_rank {
+            let st = &k.stage_seconds_per_window;
+            let _ = writeln!(
+                s,
+                "  rank {:>3}: events {} internal {} broad {} narrow {} commit {} other {} ms; \
+                 {:.0} messages, {:.3} MB sent per window",
+                k.rank,
+                ms(st.events),
+                ms(st.internal),
+                ms(st.broad),
+                ms(st.narrow),
+                ms(st.commit),
+                ms(st.other),
+                k.messages_per_window,
+                k.bytes_per_window / 1e6
+            );
+        }
+    }
     let _ = writeln!(
         s,
         "\nTimes are milliseconds per window (median); internal is the internal-force part of \
          events. evals/core·s: committed-pass internal stencil evaluations per wall second per \
          thread (the whole pipeline); internal/core·s: internal stencil evaluations (all \
          passes) per second of the internal-force stage per thread; queries/s: narrow-phase \
-         queries (all passes) per narrow-stage second; efficiency: T(1) / (n · T(n)), T(1) on \
-         the serial executor."
+         queries (all passes) per narrow-stage second; efficiency: T(1) / (n · T(n)) with n = \
+         ranks · threads, T(1) on the serial executor."
     );
     s
 }
@@ -680,6 +946,14 @@ mod tests {
         assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
         assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), 2.5);
         assert_eq!(median(&[7.0]), 7.0);
+    }
+
+    #[test]
+    fn rank_lists() {
+        assert_eq!(rank_counts(&[]).unwrap(), vec![1]);
+        assert_eq!(rank_counts(&[1, 3]).unwrap(), vec![1, 3]);
+        assert!(rank_counts(&[0]).is_err());
+        assert!(rank_counts(&[2, 2]).is_err());
     }
 
     #[test]
