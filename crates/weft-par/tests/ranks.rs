@@ -30,8 +30,7 @@ fn reference(w: &World, ticks: usize) -> (Vec<DVec3>, Vec<DVec3>) {
         .collect();
     for _ in 0..ticks {
         w.internal
-            .evaluate(&Serial, &bounds, &x, &v, &mut out)
-            .unwrap();
+            .evaluate(&Serial, &bounds, &x, &v, &mut out, None);
         for &i in &cloth {
             let f = w.internal.fold(i, &out);
             advance(w, i, f, &mut x[i], &mut v[i], h);

@@ -51,8 +51,7 @@ fn main() {
     for _ in 0..5 {
         let t = Instant::now();
         for _ in 0..reps {
-            f.evaluate(&Serial, &bounds, &world.x, &world.v, &mut out)
-                .unwrap();
+            f.evaluate(&Serial, &bounds, &world.x, &world.v, &mut out, None);
             for i in 0..world.x.len() {
                 sum += f.fold(i, &out);
             }

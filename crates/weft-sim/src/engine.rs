@@ -37,6 +37,7 @@ use crate::dormancy::Dormancy;
 use crate::error::SimError;
 use crate::executor::{place_in_blocks, split_chunks, CommError, Executor, Serial};
 use crate::layers::{penalty_kick, LayerState, PenaltyImpulse};
+use crate::share::RankShare;
 use crate::state::EngineState;
 use crate::trace;
 use crate::trajectory::Trajectories;
@@ -237,6 +238,8 @@ pub struct Engine<E: Executor = Serial> {
     narrow_costs: CostModel,
     /// Over ranks: measured narrow-phase seconds per rank, since the start.
     pub narrow_load: NarrowLoad,
+    /// Over ranks: this rank's share of the internal ticks.
+    share: Option<RankShare>,
 }
 
 /// Narrow-phase work per rank (measured task seconds, summed over passes):
@@ -263,6 +266,7 @@ impl<E: Executor> Engine<E> {
     pub fn new(world: World, exec: E) -> Result<Self, SimError> {
         let n = world.num_vertices();
         let traj = Trajectories::new(n, world.limits.trajectory_budget_bytes);
+        let share = (exec.ranks() > 1).then(|| RankShare::new(&world, exec.rank(), exec.ranks()));
         let mut engine = Self {
             ws: Workspace {
                 xt: vec![DVec3::ZERO; n],
@@ -286,6 +290,7 @@ impl<E: Executor> Engine<E> {
             interrupt: None,
             narrow_costs: CostModel::default(),
             narrow_load: NarrowLoad::default(),
+            share,
         };
         engine.check_initial_state()?;
         Ok(engine)
@@ -695,14 +700,31 @@ impl<E: Executor> Engine<E> {
                         *p = Self::pos_at(w, k * VERTEX_RUN + j, t);
                     }
                 });
-            w.internal
-                .evaluate(&self.exec, &ws.bounds, &ws.xt, &w.v, &mut ws.out)?;
+            // Over ranks: this rank's partitions, then the boundary slots
+            // the others computed; it folds only the vertices it owns.
+            let share = self.share.as_ref();
+            let own_partition = share.map(|s| &s.own_partition[..]);
+            w.internal.evaluate(
+                &self.exec,
+                &ws.bounds,
+                &ws.xt,
+                &w.v,
+                &mut ws.out,
+                own_partition,
+            );
+            if let Some(share) = share {
+                share.exchange_slots(&self.exec, &mut ws.out)?;
+            }
+            let own_vertex = share.map(|s| &s.own_vertex[..]);
             let h = w.lattice.h_el();
             let out = &ws.out;
             self.exec
                 .for_each_chunk(&mut ws.acc, &ws.vertex_runs, &|k, run| {
                     for (j, a) in run.iter_mut().enumerate() {
                         let i = k * VERTEX_RUN + j;
+                        if own_vertex.is_some_and(|own| !own[i]) {
+                            continue; // folded by its owner
+                        }
                         if w.inv_mass[i] > 0.0 {
                             let g = w.internal.fold(i, out) - w.gravity * w.mass[i];
                             *a = g * -h;
@@ -875,14 +897,22 @@ impl<E: Executor> Engine<E> {
         let tsec = w.lattice.seconds(t);
         if internal {
             let (xt, acc, friction, fmax) = (&ws.xt, &ws.acc, &ws.friction, &ws.friction_max);
+            let share = self.share.as_ref();
+            let own_vertex = share.map(|s| &s.own_vertex[..]);
             self.exec
                 .for_each_chunk(&mut ws.v_new, &ws.vertex_runs, &|k, run| {
                     for (j, v) in run.iter_mut().enumerate() {
                         let i = k * VERTEX_RUN + j;
+                        if own_vertex.is_some_and(|own| !own[i]) {
+                            continue; // advanced by its owner
+                        }
                         let impulse = (acc[i], friction[i], fmax[i]);
                         *v = new_velocity(w, i, true, xt[i], impulse, tsec, h);
                     }
                 });
+            if let Some(share) = share {
+                share.exchange_velocities(&self.exec, &mut ws.v_new)?;
+            }
         }
         let window_start = self.traj.start();
         if internal {

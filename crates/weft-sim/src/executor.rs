@@ -100,17 +100,12 @@ pub trait Executor: Sync {
         Ok(())
     }
 
-    /// **Collective over ranks.** [`Executor::chunks_on_ranks`] for vectors,
-    /// sent as their raw bits (eight little-endian bytes per coordinate):
-    /// the internal forces' output slots, every internal tick.
-    fn vectors_on_ranks(
-        &self,
-        data: &mut [glam::DVec3],
-        bounds: &[usize],
-        task: &(dyn Fn(usize, &mut [glam::DVec3]) + Sync),
-    ) -> Result<(), CommError> {
-        self.for_each_chunk(data, bounds, task);
-        Ok(())
+    /// **Collective over ranks.** Every rank's `mine`, in rank order (this
+    /// rank's included), sent as raw bits (eight little-endian bytes per
+    /// coordinate): the exchanges of every internal tick
+    /// ([`crate::share::RankShare`]).
+    fn all_gather_vectors(&self, mine: &[glam::DVec3]) -> Result<Vec<Vec<glam::DVec3>>, CommError> {
+        Ok(vec![mine.to_vec()])
     }
 }
 

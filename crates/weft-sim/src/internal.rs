@@ -206,9 +206,8 @@ impl InternalForces {
     /// Evaluates every element at positions `x` (and velocities `v` for
     /// damping, read at the start of the batch): writes `dV/dx - f_damping`
     /// per element corner into `out` (partition-major slots).
-    ///
-    /// Over ranks, each rank evaluates the partitions placed on it and every
-    /// rank receives all slots ([`Executor::vectors_on_ranks`]).
+    /// `only`, when given, says which partitions to evaluate (the others'
+    /// slots are left as they are): a rank's share over ranks.
     pub fn evaluate<E: Executor>(
         &self,
         exec: &E,
@@ -216,11 +215,15 @@ impl InternalForces {
         x: &[DVec3],
         v: &[DVec3],
         out: &mut [DVec3],
-    ) -> Result<(), crate::CommError> {
-        exec.vectors_on_ranks(out, bounds, &|p, chunk: &mut [DVec3]| {
+        only: Option<&[bool]>,
+    ) {
+        exec.for_each_chunk(out, bounds, &|p, chunk: &mut [DVec3]| {
+            if only.is_some_and(|own| !own[p]) {
+                return;
+            }
             let _span = crate::trace::span_with("partition", "partition", p as u64);
             self.evaluate_partition(p, x, v, chunk);
-        })
+        });
     }
 
     /// Evaluates partition `p`'s elements into `chunk` (its output slots,

@@ -41,6 +41,7 @@ pub mod kinematics;
 pub mod layers;
 pub mod materials;
 pub mod partition;
+pub mod share;
 pub mod state;
 pub mod trace;
 pub mod trajectory;

@@ -229,42 +229,44 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         self.exchange_chunks(data, bounds, task, &encode, &decode)
     }
 
-    fn vectors_on_ranks(
-        &self,
-        data: &mut [DVec3],
-        bounds: &[usize],
-        task: &(dyn Fn(usize, &mut [DVec3]) + Sync),
-    ) -> Result<(), CommError> {
+    fn all_gather_vectors(&self, mine: &[DVec3]) -> Result<Vec<Vec<DVec3>>, CommError> {
+        if self.transport.size() == 1 {
+            return Ok(vec![mine.to_vec()]);
+        }
         // Raw little-endian bits: exact, and far cheaper than a generic
-        // encoding for the hundreds of kilobytes of every internal tick.
-        let encode = |mine: &[&[DVec3]]| {
-            let n: usize = mine.iter().map(|c| c.len()).sum();
-            let mut bytes = Vec::with_capacity(24 * n);
-            for v in mine.iter().flat_map(|c| c.iter()) {
-                for x in v.to_array() {
-                    bytes.extend_from_slice(&x.to_le_bytes());
+        // encoding for what travels every internal tick.
+        let mut bytes = Vec::with_capacity(24 * mine.len());
+        for v in mine {
+            for x in v.to_array() {
+                bytes.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        let me = self.rank();
+        let parts = self.transport.all_gather(bytes)?;
+        parts
+            .into_iter()
+            .enumerate()
+            .map(|(j, part)| {
+                if j == me {
+                    return Ok(mine.to_vec());
                 }
-            }
-            Ok(bytes)
-        };
-        let decode = |bytes: &[u8], theirs: &mut [&mut [DVec3]]| -> Result<bool, CommError> {
-            let n: usize = theirs.iter().map(|c| c.len()).sum();
-            if bytes.len() != 24 * n {
-                return Ok(false);
-            }
-            let mut words = bytes
-                .chunks_exact(8)
-                .map(|w| f64::from_le_bytes(w.try_into().expect("8 bytes")));
-            for slot in theirs.iter_mut().flat_map(|c| c.iter_mut()) {
-                let (x, y, z) = (words.next(), words.next(), words.next());
-                let (Some(x), Some(y), Some(z)) = (x, y, z) else {
-                    return Ok(false);
-                };
-                *slot = DVec3::new(x, y, z);
-            }
-            Ok(true)
-        };
-        self.exchange_chunks(data, bounds, task, &encode, &decode)
+                if part.len() % 24 != 0 {
+                    return Err(CommError(format!(
+                        "rank {me}: rank {j} sent {} bytes, not whole vectors",
+                        part.len()
+                    )));
+                }
+                Ok(part
+                    .chunks_exact(24)
+                    .map(|v| {
+                        let w = |k: usize| {
+                            f64::from_le_bytes(v[8 * k..8 * k + 8].try_into().expect("8 bytes"))
+                        };
+                        DVec3::new(w(0), w(1), w(2))
+                    })
+                    .collect())
+            })
+            .collect()
     }
 }
 
@@ -333,29 +335,23 @@ mod tests {
                         })
                         .unwrap();
                         let stop = r.any_rank(r.rank() == 2).unwrap();
-                        let mut vectors = vec![DVec3::NAN; 40];
-                        let vb = [0, 3, 20, 20, 40];
-                        r.vectors_on_ranks(&mut vectors, &vb, &|k, chunk: &mut [DVec3]| {
-                            for (j, v) in chunk.iter_mut().enumerate() {
-                                // -0.0 and a NaN payload must survive.
-                                *v = DVec3::new(
-                                    k as f64 + 0.25,
-                                    -0.0,
-                                    f64::from_bits(0x7ff8_0000_0000_0000 | j as u64),
-                                );
+                        // -0.0 and NaN payloads must survive.
+                        let mine: Vec<DVec3> = (0..r.rank() + 2)
+                            .map(|j| {
+                                let nan = f64::from_bits(0x7ff8_0000_0000_0000 | j as u64);
+                                DVec3::new(r.rank() as f64 + 0.25, -0.0, nan)
+                            })
+                            .collect();
+                        let all = r.all_gather_vectors(&mine).unwrap();
+                        assert_eq!(all.len(), 3);
+                        for (k, part) in all.iter().enumerate() {
+                            assert_eq!(part.len(), k + 2);
+                            for (j, v) in part.iter().enumerate() {
+                                assert_eq!(v.x, k as f64 + 0.25);
+                                assert_eq!(v.y.to_bits(), (-0.0f64).to_bits());
+                                assert_eq!(v.z.to_bits(), 0x7ff8_0000_0000_0000 | j as u64);
                             }
-                        })
-                        .unwrap();
-                        assert!(vectors.iter().enumerate().all(|(i, v)| {
-                            let k = vb
-                                .windows(2)
-                                .position(|w| (w[0]..w[1]).contains(&i))
-                                .unwrap();
-                            let j = i - vb[k];
-                            v.x == k as f64 + 0.25
-                                && v.y.to_bits() == (-0.0f64).to_bits()
-                                && v.z.to_bits() == 0x7ff8_0000_0000_0000 | j as u64
-                        }));
+                        }
                         (squares, calls.into_inner(), data, stop)
                     })
                 })
