@@ -59,55 +59,6 @@ impl<T: Transport, E: Executor> Ranks<T, E> {
         })
     }
 
-    /// Runs `task` on this rank's chunks (placed by size), then hands every
-    /// rank's chunks to every rank: `encode` writes this rank's chunks into
-    /// one message, `decode` writes a peer's message into its chunks
-    /// (returning false when it does not fit).
-    fn exchange_chunks<D: Send>(
-        &self,
-        data: &mut [D],
-        bounds: &[usize],
-        task: &(dyn Fn(usize, &mut [D]) + Sync),
-        encode: &dyn Fn(&[&[D]]) -> Result<Vec<u8>, CommError>,
-        decode: &dyn Fn(&[u8], &mut [&mut [D]]) -> Result<bool, CommError>,
-    ) -> Result<(), CommError> {
-        let chunks = bounds.len().saturating_sub(1);
-        let sizes = (0..chunks).map(|k| bounds[k + 1] - bounds[k]);
-        let owner = weft_sim::executor::place_by_size(sizes, self.transport.size());
-        let me = self.rank() as u32;
-        self.local.for_each_chunk(data, bounds, &|k, chunk| {
-            if owner[k] == me {
-                task(k, chunk);
-            }
-        });
-        if self.transport.size() == 1 {
-            return Ok(());
-        }
-        // My chunks, in chunk order.
-        let mine: Vec<&[D]> = (0..chunks)
-            .filter(|&k| owner[k] == me)
-            .map(|k| &data[bounds[k]..bounds[k + 1]])
-            .collect();
-        let parts = self.transport.all_gather(encode(&mine)?)?;
-        let mut slices = weft_sim::executor::split_chunks(data, bounds);
-        for (j, part) in parts.iter().enumerate() {
-            if j == me as usize {
-                continue;
-            }
-            let mut theirs: Vec<&mut [D]> = slices
-                .iter_mut()
-                .filter(|(k, _)| owner[*k] as usize == j)
-                .map(|(_, c)| &mut **c)
-                .collect();
-            if !decode(part, &mut theirs)? {
-                return Err(CommError(format!(
-                    "rank {me}: rank {j}'s chunks do not fit the placement"
-                )));
-            }
-        }
-        Ok(())
-    }
-
     fn check_owner(&self, n: usize, owner: &[u32]) -> Result<(), CommError> {
         let size = self.transport.size();
         if owner.len() != n || owner.iter().any(|&r| r as usize >= size) {
@@ -206,27 +157,47 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         bounds: &[usize],
         task: &(dyn Fn(usize, &mut [D]) + Sync),
     ) -> Result<(), CommError> {
-        let encode = |mine: &[&[D]]| self.encode(mine);
-        let decode = |bytes: &[u8], theirs: &mut [&mut [D]]| -> Result<bool, CommError> {
-            let values: Vec<Vec<D>> = postcard::from_bytes(bytes).map_err(|e| {
-                CommError(format!("rank {}: a malformed message: {e}", self.rank()))
-            })?;
-            if values.len() != theirs.len()
-                || values
-                    .iter()
-                    .zip(theirs.iter())
-                    .any(|(v, c)| v.len() != c.len())
-            {
-                return Ok(false);
+        let chunks = bounds.len().saturating_sub(1);
+        let sizes = (0..chunks).map(|k| bounds[k + 1] - bounds[k]);
+        let owner = weft_sim::executor::place_by_size(sizes, self.transport.size());
+        let me = self.rank() as u32;
+        self.local.for_each_chunk(data, bounds, &|k, chunk| {
+            if owner[k] == me {
+                task(k, chunk);
             }
-            for (chunk, values) in theirs.iter_mut().zip(values) {
-                for (slot, value) in chunk.iter_mut().zip(values) {
+        });
+        if self.transport.size() == 1 {
+            return Ok(());
+        }
+        // My chunks, concatenated in chunk order.
+        let mine: Vec<&[D]> = (0..chunks)
+            .filter(|&k| owner[k] == me)
+            .map(|k| &data[bounds[k]..bounds[k + 1]])
+            .collect();
+        let parts = self.transport.all_gather(self.encode(&mine)?)?;
+        for (j, part) in parts.iter().enumerate() {
+            if j == me as usize {
+                continue;
+            }
+            let theirs: Vec<usize> = (0..chunks).filter(|&k| owner[k] as usize == j).collect();
+            let values: Vec<Vec<D>> = self.decode(j, part)?;
+            let fits = values.len() == theirs.len()
+                && theirs
+                    .iter()
+                    .zip(&values)
+                    .all(|(&k, v)| v.len() == bounds[k + 1] - bounds[k]);
+            if !fits {
+                return Err(CommError(format!(
+                    "rank {me}: rank {j}'s chunks do not fit the placement"
+                )));
+            }
+            for (k, chunk) in theirs.into_iter().zip(values) {
+                for (slot, value) in data[bounds[k]..bounds[k + 1]].iter_mut().zip(chunk) {
                     *slot = value;
                 }
             }
-            Ok(true)
-        };
-        self.exchange_chunks(data, bounds, task, &encode, &decode)
+        }
+        Ok(())
     }
 
     fn all_gather_vectors(&self, mine: &[DVec3]) -> Result<Vec<Vec<DVec3>>, CommError> {
