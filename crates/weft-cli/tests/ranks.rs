@@ -6,32 +6,11 @@
 //! every rank with one error, and a lost rank ends the run without a hang.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// A small `crumple`: contact and rollbacks within a few windows.
-const SMALL: &[&str] = &[
-    "--set",
-    "size=150",
-    "--set",
-    "time.end=0.22",
-    "--set",
-    "time.steps_per_window=25",
-    "--set",
-    "output.checkpoint_every=3",
-    "--set",
-    "output.frame_rate=60",
-];
-
-fn weft() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_weft"));
-    c.env_remove("WEFT_FAILPOINT");
-    c
-}
+mod common;
+use common::{repo, weft, SMALL_CRUMPLE};
 
 fn summary(o: &Output) -> serde_json::Value {
     assert!(
@@ -66,7 +45,7 @@ fn run_small(out: &Path, extra: &[&str]) -> Output {
         .arg(repo().join("scenes/crumple.toml"))
         .arg("--out")
         .arg(out)
-        .args(SMALL)
+        .args(SMALL_CRUMPLE)
         .args(extra)
         .args(["--quiet", "--no-preview"])
         .output()

@@ -6,36 +6,16 @@
 //! a run that never stopped. Corrupt and mismatched checkpoints are refused.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
+mod common;
+use common::{repo, weft, SMALL_CRUMPLE};
 
-/// A small `crumple`: contact and rollbacks within a few windows, seconds to run.
-const FIXTURE: &[&str] = &[
-    "--set",
-    "size=150",
-    "--set",
-    "time.end=0.22",
-    "--set",
-    "time.steps_per_window=25",
-    "--set",
-    "output.checkpoint_every=3",
-    "--set",
-    "output.frame_rate=60",
-    "--set",
-    "output.formats=[\"ply\",\"vtk\"]",
-];
-
-fn weft() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_weft"));
-    c.env_remove("WEFT_FAILPOINT");
-    c
-}
+/// The small `crumple`, writing PLY and VTK frames.
+const FORMATS: &[&str] = &["--set", "output.formats=[\"ply\",\"vtk\"]"];
 
 fn fresh_run(out: &Path, failpoint: Option<&str>, extra: &[&str]) -> Output {
     let mut c = weft();
@@ -43,7 +23,8 @@ fn fresh_run(out: &Path, failpoint: Option<&str>, extra: &[&str]) -> Output {
         .arg(repo().join("scenes/crumple.toml"))
         .arg("--out")
         .arg(out)
-        .args(FIXTURE)
+        .args(SMALL_CRUMPLE)
+        .args(FORMATS)
         .args(extra)
         .args(["--quiet", "--no-preview"]);
     if let Some(f) = failpoint {
@@ -244,7 +225,8 @@ fn spawn_run(out: &Path) -> std::process::Child {
         .arg(repo().join("scenes/crumple.toml"))
         .arg("--out")
         .arg(out)
-        .args(FIXTURE)
+        .args(SMALL_CRUMPLE)
+        .args(FORMATS)
         .args(["--quiet", "--no-preview"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())

@@ -490,7 +490,8 @@ impl<E: Executor> Engine<E> {
             drop(broad_span);
             stages.broad += clock.elapsed().as_secs_f64();
             let clock = Instant::now();
-            let narrow_span = trace::span("narrow");
+            let count = candidates.as_ref().map_or(0, |c| c.len() as u64);
+            let narrow_span = trace::span_with("narrow", "candidates", count);
             let found = candidates.and_then(|c| Ok((self.narrow_phase(&c)?, c)));
             let (reported, candidates) = match found {
                 Ok(found) => found,

@@ -93,13 +93,8 @@ pub struct BenchArgs {
 /// The totals of one run of `--windows` windows.
 #[derive(Clone, Debug, Default)]
 struct Sample {
-    wall: f64,
-    events: f64,
-    broad: f64,
-    narrow: f64,
-    commit: f64,
-    /// The internal-force part of `events`.
-    internal: f64,
+    /// This rank's wall and stage seconds, and what it sent.
+    own: RankSample,
     internal_evaluations: u64,
     /// Internal stencil evaluations over all passes (rolled-back ones too).
     internal_evaluations_all_passes: u64,
@@ -124,6 +119,7 @@ struct RankSample {
     broad: f64,
     narrow: f64,
     commit: f64,
+    /// The internal-force part of `events`.
     internal: f64,
     messages: u64,
     bytes: u64,
@@ -399,7 +395,7 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
                     "weft bench: {ranks} rank(s) × {n} thread(s), run {}/{}: {:.4} s per window",
                     r + 1,
                     a.repeats,
-                    s.wall / a.windows as f64
+                    s.own.wall / a.windows as f64
                 ));
                 samples.push(s);
             }
@@ -531,7 +527,7 @@ fn run_once(
             let (world, start) = (world.clone(), start.clone());
             let mut s = local.install(move || measure(world, exec, start, windows))?;
             // Collective: every rank's own figures to every rank.
-            let mine = postcard::to_allocvec(&s.ranks[0])?;
+            let mine = postcard::to_allocvec(&s.own)?;
             let parts = t.all_gather(mine).map_err(|e| anyhow::anyhow!("{e}"))?;
             s.ranks = parts
                 .iter()
@@ -642,11 +638,11 @@ fn measure<E: Executor>(
     let clock = Instant::now();
     for _ in 0..windows {
         let w = engine.step_window()?;
-        s.events += w.stage_seconds.events;
-        s.broad += w.stage_seconds.broad;
-        s.narrow += w.stage_seconds.narrow;
-        s.commit += w.stage_seconds.commit;
-        s.internal += w.stage_seconds.internal;
+        s.own.events += w.stage_seconds.events;
+        s.own.broad += w.stage_seconds.broad;
+        s.own.narrow += w.stage_seconds.narrow;
+        s.own.commit += w.stage_seconds.commit;
+        s.own.internal += w.stage_seconds.internal;
         // Every pass runs the window's internal ticks (a pass cut short by a
         // blow-up, which is rolled back, would count a little high).
         s.internal_evaluations_all_passes +=
@@ -657,20 +653,13 @@ fn measure<E: Executor>(
         s.active_stencils = w.active_stencils;
         s.max_depth = w.max_depth;
     }
-    s.wall = clock.elapsed().as_secs_f64();
+    s.own.wall = clock.elapsed().as_secs_f64();
     s.narrow_queries = engine.totals.narrow_queries - queries_before;
     s.state_hash = engine.state_hash();
     let traffic = engine.executor().traffic();
-    s.ranks = vec![RankSample {
-        wall: s.wall,
-        events: s.events,
-        broad: s.broad,
-        narrow: s.narrow,
-        commit: s.commit,
-        internal: s.internal,
-        messages: traffic.messages - traffic_before.messages,
-        bytes: traffic.bytes - traffic_before.bytes,
-    }];
+    s.own.messages = traffic.messages - traffic_before.messages;
+    s.own.bytes = traffic.bytes - traffic_before.bytes;
+    s.ranks = vec![s.own.clone()];
     s.narrow_load = engine.narrow_load.clone();
     Ok(s)
 }
@@ -708,31 +697,27 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
         // Cores at work: every rank's threads.
         let n = ranks * threads;
         let med = |f: &dyn Fn(&Sample) -> f64| median(&samples.iter().map(f).collect::<Vec<_>>());
-        let runs: Vec<f64> = samples.iter().map(|s| s.wall / windows).collect();
+        let runs: Vec<f64> = samples.iter().map(|s| s.own.wall / windows).collect();
         let wall = median(&runs);
-        let events = med(&|s| s.events / windows);
-        let broad = med(&|s| s.broad / windows);
-        let narrow = med(&|s| s.narrow / windows);
-        let commit = med(&|s| s.commit / windows);
-        let internal = med(&|s| s.internal / windows);
-        let other = med(&|s| (s.wall - s.events - s.broad - s.narrow - s.commit) / windows);
+        // Per window, the median over the runs of a figure of one rank.
+        let of_rank = |of: &dyn Fn(&Sample) -> &RankSample, f: &dyn Fn(&RankSample) -> f64| {
+            med(&|s| f(of(s)) / windows)
+        };
+        let stages = |of: &dyn Fn(&Sample) -> &RankSample| StageTimes {
+            events: of_rank(of, &|x| x.events),
+            broad: of_rank(of, &|x| x.broad),
+            narrow: of_rank(of, &|x| x.narrow),
+            commit: of_rank(of, &|x| x.commit),
+            internal: of_rank(of, &|x| x.internal),
+            other: of_rank(of, &|x| x.wall - x.events - x.broad - x.narrow - x.commit),
+        };
         let evals = first.internal_evaluations as f64;
         let per_rank = (0..ranks)
-            .map(|k| {
-                let rm = |f: &dyn Fn(&RankSample) -> f64| med(&|s| f(&s.ranks[k]) / windows);
-                RankFigures {
-                    rank: k,
-                    stage_seconds_per_window: StageTimes {
-                        events: rm(&|x| x.events),
-                        broad: rm(&|x| x.broad),
-                        narrow: rm(&|x| x.narrow),
-                        commit: rm(&|x| x.commit),
-                        internal: rm(&|x| x.internal),
-                        other: rm(&|x| x.wall - x.events - x.broad - x.narrow - x.commit),
-                    },
-                    messages_per_window: rm(&|x| x.messages as f64),
-                    bytes_per_window: rm(&|x| x.bytes as f64),
-                }
+            .map(|k| RankFigures {
+                rank: k,
+                stage_seconds_per_window: stages(&|s| &s.ranks[k]),
+                messages_per_window: of_rank(&|s| &s.ranks[k], &|x| x.messages as f64),
+                bytes_per_window: of_rank(&|s| &s.ranks[k], &|x| x.bytes as f64),
             })
             .collect();
         let imbalance = |f: &dyn Fn(&NarrowLoad) -> &[f64]| {
@@ -752,20 +737,15 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
             },
             wall_seconds_per_window: wall,
             runs_wall_seconds_per_window: runs.clone(),
-            stage_seconds_per_window: StageTimes {
-                events,
-                broad,
-                narrow,
-                commit,
-                internal,
-                other,
-            },
-            internal_evaluations_per_core_second: med(&|s| evals / (s.wall * n as f64)),
-            internal_evaluations_per_events_core_second: med(&|s| evals / (s.events * n as f64)),
-            internal_stage_evaluations_per_core_second: med(&|s| {
-                s.internal_evaluations_all_passes as f64 / (s.internal * n as f64)
+            stage_seconds_per_window: stages(&|s| &s.own),
+            internal_evaluations_per_core_second: med(&|s| evals / (s.own.wall * n as f64)),
+            internal_evaluations_per_events_core_second: med(&|s| {
+                evals / (s.own.events * n as f64)
             }),
-            narrow_queries_per_second: med(&|s| s.narrow_queries as f64 / s.narrow),
+            internal_stage_evaluations_per_core_second: med(&|s| {
+                s.internal_evaluations_all_passes as f64 / (s.own.internal * n as f64)
+            }),
+            narrow_queries_per_second: med(&|s| s.narrow_queries as f64 / s.own.narrow),
             speedup: None,
             parallel_efficiency: None,
             per_rank,

@@ -1,0 +1,33 @@
+//! What the end-to-end tests of the `weft` binary share.
+
+#![allow(dead_code)] // each test file uses its own part
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The repository root (scenes live in `scenes/`).
+pub fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// The `weft` binary, with no failpoint inherited from the caller.
+pub fn weft() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_weft"));
+    c.env_remove("WEFT_FAILPOINT");
+    c
+}
+
+/// A small `crumple`: contact and rollbacks within a few windows, seconds to
+/// run, a checkpoint every 3 windows and frames at 60 per second.
+pub const SMALL_CRUMPLE: &[&str] = &[
+    "--set",
+    "size=150",
+    "--set",
+    "time.end=0.22",
+    "--set",
+    "time.steps_per_window=25",
+    "--set",
+    "output.checkpoint_every=3",
+    "--set",
+    "output.frame_rate=60",
+];
