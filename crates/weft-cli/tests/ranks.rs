@@ -228,6 +228,32 @@ mod mpi {
         assert!(err.contains("no_such_key"), "{err}");
     }
 
+    #[test]
+    fn mpi_resume_from_a_corrupt_checkpoint_is_one_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = summary(&run_fixture(2, 1, dir.path(), &["--stop-after", "0"]));
+        assert_eq!(s["complete"], false, "{s}");
+        let ck = dir.path().join("checkpoint.wckp");
+        let mut bytes = std::fs::read(&ck).unwrap();
+        let middle = bytes.len() / 2;
+        bytes[middle] ^= 0xff;
+        std::fs::write(&ck, bytes).unwrap();
+        let mut c = mpirun(3);
+        c.args(["run", "--resume"]).arg(dir.path()).args([
+            "--threads",
+            "1",
+            "--quiet",
+            "--no-preview",
+        ]);
+        let o = output_within(c, Duration::from_secs(120));
+        assert_eq!(o.status.code(), Some(1), "{o:?}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        let errors = err.lines().filter(|l| l.starts_with("error:")).count();
+        assert_eq!(errors, 1, "one error line:\n{err}");
+        assert!(err.contains("checkpoint.wckp"), "{err}");
+        assert!(!err.contains("MPI_ABORT"), "no abort needed:\n{err}");
+    }
+
     /// Rank 1's process, found among `mpirun`'s children by its environment.
     fn rank_pid(ranks_parent: u32, rank: usize) -> Option<u32> {
         for e in std::fs::read_dir("/proc").ok()?.flatten() {

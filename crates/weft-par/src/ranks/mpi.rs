@@ -7,7 +7,7 @@
 //! `MPI_Wait` there would also stall whatever that thread is asked to help
 //! with. So every collective here is started as an immediate (nonblocking)
 //! operation and completed by polling `MPI_Test` with a back-off (spin, then
-//! yield, then sleep growing to about 1 ms).
+//! yield for a few milliseconds, then sleep growing to 200 µs).
 //!
 //! MPI is initialized with thread level `MPI_THREAD_SERIALIZED`: any thread
 //! may call into MPI, one at a time. [`MpiTransport`] enforces that itself: a

@@ -367,25 +367,7 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
     let mut writer = None;
     if job.resume {
         let path = out.join(CHECKPOINT_FILE);
-        if !path.exists() {
-            bail!(
-                "{} has no checkpoint to resume from ({} is missing); the run stopped before \
-                 its first checkpoint — start it again",
-                out.display(),
-                path.display()
-            );
-        }
-        let ck = read_checkpoint(&path)?;
-        if ck.scene_hash != hash {
-            bail!(
-                "{}: the checkpoint was made from a different scene (scene hash {} there, {} now); \
-                 the scene file, a mesh it reads or an override changed — only time.end may \
-                 change on resume",
-                path.display(),
-                ck.scene_hash,
-                hash
-            );
-        }
+        let ck = read_resumable(out, &hash)?;
         engine
             .restore(ck.engine)
             .with_context(|| format!("{}", path.display()))?;
@@ -581,6 +563,32 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
         internal_step: w.lattice.h_el(),
         eta_1: w.schedule.eta_1,
     })
+}
+
+/// The checkpoint in run folder `out`, if it can be resumed by a scene whose
+/// hash is `hash`.
+pub(crate) fn read_resumable(out: &Path, hash: &str) -> anyhow::Result<Checkpoint> {
+    let path = out.join(CHECKPOINT_FILE);
+    if !path.exists() {
+        bail!(
+            "{} has no checkpoint to resume from ({} is missing); the run stopped before \
+             its first checkpoint — start it again",
+            out.display(),
+            path.display()
+        );
+    }
+    let ck = read_checkpoint(&path)?;
+    if ck.scene_hash != hash {
+        bail!(
+            "{}: the checkpoint was made from a different scene (scene hash {} there, {} now); \
+             the scene file, a mesh it reads or an override changed — only time.end may \
+             change on resume",
+            path.display(),
+            ck.scene_hash,
+            hash
+        );
+    }
+    Ok(ck)
 }
 
 /// Writes checkpoints of one process.

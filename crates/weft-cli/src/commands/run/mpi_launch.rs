@@ -3,8 +3,9 @@
 //!
 //! Failure behaviour, so that no rank ever waits for one that will not come:
 //!
-//! * **Setup** (scene, meshes, manifest, overrides): every rank checks it,
-//!   then the ranks compare outcomes in one collective; if any failed, rank 0
+//! * **Setup** (scene, meshes, overrides, the world they build, and on
+//!   `--resume` the manifest and the checkpoint): every rank checks it, then
+//!   the ranks compare outcomes in one collective; if any failed, rank 0
 //!   prints the error (naming the rank when not all ranks saw it) and every
 //!   rank exits 1.
 //! * **The run**: an engine error is the same on every rank (every rank holds
@@ -21,7 +22,7 @@ use weft_par::ranks::{MpiTransport, Transport};
 use weft_par::{Ranks, Threads};
 use weft_sim::SimError;
 
-use super::{execute, new_job, prepare, write_trace, RunArgs};
+use super::{execute, new_job, prepare, read_resumable, scene_hash, write_trace, RunArgs};
 
 /// Whether this process was started by an MPI launcher (`mpirun`, `srun`).
 pub fn launched() -> bool {
@@ -45,7 +46,14 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     }
     let transport = MpiTransport::init().map_err(|e| anyhow::anyhow!("cannot start MPI: {e}"))?;
     let rank = transport.rank();
-    let setup = prepare(&a);
+    let setup = prepare(&a).and_then(|(scene, out, resume)| {
+        // What `execute` would refuse before its first collective.
+        let world = weft_par::build_world(&scene.world)?;
+        if resume {
+            read_resumable(&out, &scene_hash(&scene, &world))?;
+        }
+        Ok((scene, out, resume))
+    });
     let failed = setup
         .as_ref()
         .err()
