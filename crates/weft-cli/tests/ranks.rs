@@ -75,6 +75,7 @@ fn simulated_ranks_give_the_same_bits_and_the_same_files() {
             &["--ranks", ranks, "--threads", threads],
         ));
         assert_eq!(s["state_hash"], reference["state_hash"], "{ranks} ranks");
+        assert_eq!(s["ranks"].to_string(), ranks, "{s}");
         assert_eq!(s["frames"], reference["frames"], "{ranks} ranks");
         assert_eq!(outputs(dir.path()), outputs(one.path()), "{ranks} ranks");
     }
@@ -190,6 +191,7 @@ mod mpi {
                 let dir = tempfile::tempdir().unwrap();
                 let s = summary(&run_fixture(ranks, threads, dir.path(), &[]));
                 assert_eq!(s["state_hash"], FIXTURE_HASH, "{ranks} ranks × {threads}");
+                assert_eq!(s["ranks"], ranks, "{s}");
                 assert_eq!(s["complete"], true);
             }
         }

@@ -140,6 +140,10 @@ pub struct RunSummary {
     pub max_depth: u32,
     pub max_active_stencils: u64,
     pub narrow_queries: u64,
+    /// What ran the engine (rank 0's executor over ranks), and how many
+    /// ranks shared the run.
+    pub executor: String,
+    pub ranks: usize,
     pub vertices: usize,
     pub triangles: usize,
     pub internal_step: f64,
@@ -558,6 +562,8 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
         max_depth: engine.totals.max_depth,
         max_active_stencils: engine.totals.max_active_stencils,
         narrow_queries: engine.totals.narrow_queries,
+        executor: engine.executor().name(),
+        ranks: engine.executor().ranks(),
         vertices: w.num_vertices(),
         triangles: w.triangles.len(),
         internal_step: w.lattice.h_el(),
