@@ -10,7 +10,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 mod common;
-use common::{repo, weft, SMALL_CRUMPLE};
+use common::{repo, resume, weft, SMALL_CRUMPLE};
 
 fn summary(o: &Output) -> serde_json::Value {
     assert!(
@@ -46,17 +46,6 @@ fn run_small(out: &Path, extra: &[&str]) -> Output {
         .arg("--out")
         .arg(out)
         .args(SMALL_CRUMPLE)
-        .args(extra)
-        .args(["--quiet", "--no-preview"])
-        .output()
-        .expect("weft runs")
-}
-
-fn resume(out: &Path, extra: &[&str]) -> Output {
-    weft()
-        .arg("run")
-        .arg("--resume")
-        .arg(out)
         .args(extra)
         .args(["--quiet", "--no-preview"])
         .output()

@@ -12,7 +12,7 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{repo, weft, SMALL_CRUMPLE};
+use common::{repo, resume, weft, SMALL_CRUMPLE};
 
 /// The small `crumple`, writing PLY and VTK frames.
 const FORMATS: &[&str] = &["--set", "output.formats=[\"ply\",\"vtk\"]"];
@@ -31,17 +31,6 @@ fn fresh_run(out: &Path, failpoint: Option<&str>, extra: &[&str]) -> Output {
         c.env("WEFT_FAILPOINT", f);
     }
     c.output().expect("weft runs")
-}
-
-fn resume(out: &Path, extra: &[&str]) -> Output {
-    weft()
-        .arg("run")
-        .arg("--resume")
-        .arg(out)
-        .args(extra)
-        .args(["--quiet", "--no-preview"])
-        .output()
-        .expect("weft runs")
 }
 
 fn summary(o: &Output) -> serde_json::Value {

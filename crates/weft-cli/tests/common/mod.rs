@@ -3,7 +3,7 @@
 #![allow(dead_code)] // each test file uses its own part
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Output};
 
 /// The repository root (scenes live in `scenes/`).
 pub fn repo() -> PathBuf {
@@ -31,3 +31,15 @@ pub const SMALL_CRUMPLE: &[&str] = &[
     "--set",
     "output.frame_rate=60",
 ];
+
+/// `weft run --resume out EXTRA… --quiet --no-preview`.
+pub fn resume(out: &Path, extra: &[&str]) -> Output {
+    weft()
+        .arg("run")
+        .arg("--resume")
+        .arg(out)
+        .args(extra)
+        .args(["--quiet", "--no-preview"])
+        .output()
+        .expect("weft runs")
+}
