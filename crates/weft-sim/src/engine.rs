@@ -1059,7 +1059,8 @@ impl<E: Executor> Engine<E> {
         let order = tasks.by_load();
         let ranks = self.exec.ranks();
         let mut owner = vec![0u32; order.len()];
-        let home = w.internal.home_ranks(ranks);
+        // The partitions' home ranks, placed once for the run (over ranks).
+        let home = self.share.as_ref().map_or(&[][..], |s| &s.home[..]);
         if ranks > 1 {
             let by_load: Vec<_> = order.iter().map(|&t| tasks.tasks[t].clone()).collect();
             let (assigned, _) = locality_aware(&by_load, ranks, &|p| home[p as usize] as usize);

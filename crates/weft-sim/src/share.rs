@@ -29,6 +29,8 @@ use crate::world::World;
 pub struct RankShare {
     pub rank: usize,
     pub ranks: usize,
+    /// Per partition: the rank it is placed on (its home rank).
+    pub home: Vec<u32>,
     /// Per partition: evaluated on this rank.
     pub own_partition: Vec<bool>,
     /// Per vertex: folded and advanced on this rank.
@@ -77,6 +79,7 @@ impl RankShare {
             rank,
             ranks,
             own_partition: home.iter().map(|&r| r as usize == rank).collect(),
+            home,
             own_vertex: owner.iter().map(|&r| r as usize == rank).collect(),
             sends,
             owned,
