@@ -348,14 +348,49 @@ pub(crate) fn scene_hash(scene: &Scene, world: &World) -> String {
     format!("{:032x}", xxhash_rust::xxh3::xxh3_128(text.as_bytes()))
 }
 
+/// What a job starts from: the world its scene builds, the scene hash, and on
+/// resume the checkpoint (checked against that hash).
+pub(crate) struct Prepared {
+    world: World,
+    hash: String,
+    checkpoint: Option<Checkpoint>,
+}
+
+impl Prepared {
+    /// Builds `scene`'s world and, when `resume`, reads `out`'s checkpoint.
+    pub(crate) fn new(scene: &Scene, out: &Path, resume: bool) -> anyhow::Result<Self> {
+        let world = weft_par::build_world(&scene.world)?;
+        let hash = scene_hash(scene, &world);
+        let checkpoint = match resume {
+            true => Some(read_resumable(out, &hash)?),
+            false => None,
+        };
+        Ok(Self {
+            world,
+            hash,
+            checkpoint,
+        })
+    }
+}
+
 /// Runs a job: see the module documentation for what it writes.
+pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSummary> {
+    let prepared = Prepared::new(job.scene, job.out, job.resume)?;
+    execute_prepared(job, prepared, exec)
+}
+
+/// [`execute`] from a [`Prepared`] start.
 ///
 /// On an executor spread over ranks every rank calls this with the same job:
 /// every rank steps the same windows (the engine's collectives keep them in
 /// step) and only rank 0 writes — outputs, checkpoints, manifest, progress.
 /// The ranks agree at every window boundary whether to stop, so a signal or
 /// deadline that reached only some of them stops all at the same window.
-pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSummary> {
+pub(crate) fn execute_prepared<E: Executor>(
+    job: RunJob<'_>,
+    prepared: Prepared,
+    exec: E,
+) -> anyhow::Result<RunSummary> {
     let started = Instant::now();
     let (scene, out) = (job.scene, job.out);
     let leader = exec.rank() == 0;
@@ -363,15 +398,17 @@ pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSumma
     if leader {
         std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     }
-    let world = weft_par::build_world(&scene.world)?;
-    let hash = scene_hash(scene, &world);
+    let Prepared {
+        world,
+        hash,
+        checkpoint,
+    } = prepared;
     let mut engine = Engine::new(world, exec)?;
     let machine = Machine::this();
     let mut prior_wall = 0.0;
     let mut writer = None;
-    if job.resume {
+    if let Some(ck) = checkpoint {
         let path = out.join(CHECKPOINT_FILE);
-        let ck = read_resumable(out, &hash)?;
         engine
             .restore(ck.engine)
             .with_context(|| format!("{}", path.display()))?;

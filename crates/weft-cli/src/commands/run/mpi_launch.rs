@@ -22,7 +22,7 @@ use weft_par::ranks::{MpiTransport, Transport};
 use weft_par::{Ranks, Threads};
 use weft_sim::SimError;
 
-use super::{execute, new_job, prepare, read_resumable, scene_hash, write_trace, RunArgs};
+use super::{execute_prepared, new_job, prepare, write_trace, Prepared, RunArgs};
 
 /// Whether this process was started by an MPI launcher (`mpirun`, `srun`).
 pub fn launched() -> bool {
@@ -46,13 +46,10 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     }
     let transport = MpiTransport::init().map_err(|e| anyhow::anyhow!("cannot start MPI: {e}"))?;
     let rank = transport.rank();
+    // Everything a rank could refuse before the run's first collective.
     let setup = prepare(&a).and_then(|(scene, out, resume)| {
-        // What `execute` would refuse before its first collective.
-        let world = weft_par::build_world(&scene.world)?;
-        if resume {
-            read_resumable(&out, &scene_hash(&scene, &world))?;
-        }
-        Ok((scene, out, resume))
+        let prepared = Prepared::new(&scene, &out, resume)?;
+        Ok((scene, out, resume, prepared))
     });
     let failed = setup
         .as_ref()
@@ -78,11 +75,11 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
         }
         return Ok(ExitCode::from(1));
     }
-    let (scene, out, resume) = setup?;
+    let (scene, out, resume, prepared) = setup?;
     let job = new_job(&a, &scene, &out, resume)?;
     let threads = Threads::new(a.threads).context("cannot start the worker threads")?;
     let exec = Ranks::new(&transport, threads.clone());
-    let result = threads.install(move || execute(job, exec));
+    let result = threads.install(move || execute_prepared(job, prepared, exec));
     if let Some(path) = &a.trace {
         // One timeline per rank: rank 0 at the given path, rank r beside it.
         let path = if rank == 0 {
