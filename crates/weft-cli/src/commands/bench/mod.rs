@@ -438,31 +438,37 @@ fn thread_counts(given: &[usize]) -> anyhow::Result<Vec<usize>> {
         let all = std::thread::available_parallelism().map_or(1, |n| n.get());
         return Ok(if all > 1 { vec![1, all] } else { vec![1] });
     }
-    let mut seen = Vec::new();
-    for &n in given {
-        if n == 0 {
-            bail!("--threads: thread counts must be at least 1 (got 0)");
-        }
-        if seen.contains(&n) {
-            bail!("--threads: {n} is listed twice");
-        }
-        seen.push(n);
-    }
-    Ok(seen)
+    distinct_counts(
+        given,
+        "--threads",
+        "thread counts must be at least 1",
+        1..=usize::MAX,
+    )
 }
 
-/// The rank counts to run: as given (each at least 1, no repeats), or 1.
+/// The rank counts to run: as given (1 to 256, no repeats), or 1.
 fn rank_counts(given: &[usize]) -> anyhow::Result<Vec<usize>> {
     if given.is_empty() {
         return Ok(vec![1]);
     }
+    distinct_counts(given, "--ranks", "rank counts must be 1 to 256", 1..=256)
+}
+
+/// `given` checked: every count in `allowed` (else `option: rule (got n)`),
+/// none listed twice.
+fn distinct_counts(
+    given: &[usize],
+    option: &str,
+    rule: &str,
+    allowed: std::ops::RangeInclusive<usize>,
+) -> anyhow::Result<Vec<usize>> {
     let mut seen = Vec::new();
     for &n in given {
-        if !(1..=256).contains(&n) {
-            bail!("--ranks: rank counts must be 1 to 256 (got {n})");
+        if !allowed.contains(&n) {
+            bail!("{option}: {rule} (got {n})");
         }
         if seen.contains(&n) {
-            bail!("--ranks: {n} is listed twice");
+            bail!("{option}: {n} is listed twice");
         }
         seen.push(n);
     }
