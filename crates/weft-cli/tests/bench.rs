@@ -36,31 +36,30 @@ fn positive(j: &serde_json::Value, key: &str) -> f64 {
     v
 }
 
+/// One run of one window on one thread.
+const ONE_QUICK_RUN: &[&str] = &["--windows", "1", "--repeats", "1", "--threads", "1"];
+
+/// `weft bench SCENE --size SIZE --checkpoint CK EXTRA…` in `dir`.
+fn bench_from(dir: &Path, scene: &Path, size: &str, ck: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "bench",
+        scene.to_str().unwrap(),
+        "--size",
+        size,
+        "--checkpoint",
+        ck.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    weft(dir, &args)
+}
+
 /// Makes a crumple checkpoint of `size` vertices at t = `warmup` in `dir`
 /// through a one-window bench, and returns its path.
 fn small_checkpoint(dir: &Path, size: &str, warmup: &str) -> PathBuf {
     let ck = dir.join(format!("crumple-{size}.wckp"));
-    let crumple = scene("crumple.toml");
-    let o = weft(
-        dir,
-        &[
-            "bench",
-            crumple.to_str().unwrap(),
-            "--size",
-            size,
-            "--warmup",
-            warmup,
-            "--make-checkpoint",
-            "--checkpoint",
-            ck.to_str().unwrap(),
-            "--windows",
-            "1",
-            "--repeats",
-            "1",
-            "--threads",
-            "1",
-        ],
-    );
+    let mut extra = vec!["--warmup", warmup, "--make-checkpoint"];
+    extra.extend_from_slice(ONE_QUICK_RUN);
+    let o = bench_from(dir, &scene("crumple.toml"), size, &ck, &extra);
     assert!(o.status.success(), "bench failed: {}", stderr(&o));
     ck
 }
@@ -152,27 +151,10 @@ fn bench_reports_throughput_and_efficiency_from_a_checkpoint() {
 fn a_checkpoint_of_another_scene_or_size_is_refused() {
     let tmp = tempfile::tempdir().unwrap();
     let ck = small_checkpoint(tmp.path(), "100", "0.002");
-    let path = ck.to_str().unwrap();
     let crumple = scene("crumple.toml");
     let drape = scene("drape.toml");
     for (scene, size) in [(&crumple, "120"), (&drape, "100")] {
-        let o = weft(
-            tmp.path(),
-            &[
-                "bench",
-                scene.to_str().unwrap(),
-                "--size",
-                size,
-                "--checkpoint",
-                path,
-                "--windows",
-                "1",
-                "--repeats",
-                "1",
-                "--threads",
-                "1",
-            ],
-        );
+        let o = bench_from(tmp.path(), scene, size, &ck, ONE_QUICK_RUN);
         let err = stderr(&o);
         assert_eq!(o.status.code(), Some(1), "{err}");
         assert!(
@@ -183,23 +165,7 @@ fn a_checkpoint_of_another_scene_or_size_is_refused() {
         assert!(!err.contains("panicked"), "{err}");
     }
     // The matching scene still runs from it.
-    let o = weft(
-        tmp.path(),
-        &[
-            "bench",
-            crumple.to_str().unwrap(),
-            "--size",
-            "100",
-            "--checkpoint",
-            path,
-            "--windows",
-            "1",
-            "--repeats",
-            "1",
-            "--threads",
-            "1",
-        ],
-    );
+    let o = bench_from(tmp.path(), &crumple, "100", &ck, ONE_QUICK_RUN);
     assert!(o.status.success(), "{}", stderr(&o));
 }
 
@@ -256,27 +222,18 @@ fn missing_checkpoint_and_bad_options_are_errors() {
 fn bench_over_ranks_reports_traffic_and_narrow_imbalance() {
     let tmp = tempfile::tempdir().unwrap();
     let ck = small_checkpoint(tmp.path(), "150", "0.1");
-    let crumple = scene("crumple.toml");
-    let o = weft(
-        tmp.path(),
-        &[
-            "bench",
-            crumple.to_str().unwrap(),
-            "--size",
-            "150",
-            "--checkpoint",
-            ck.to_str().unwrap(),
-            "--windows",
-            "2",
-            "--repeats",
-            "1",
-            "--threads",
-            "1",
-            "--ranks",
-            "1,3",
-            "--json",
-        ],
-    );
+    let extra = [
+        "--windows",
+        "2",
+        "--repeats",
+        "1",
+        "--threads",
+        "1",
+        "--ranks",
+        "1,3",
+        "--json",
+    ];
+    let o = bench_from(tmp.path(), &scene("crumple.toml"), "150", &ck, &extra);
     let err = stderr(&o);
     assert!(o.status.success(), "bench failed: {err}");
     let out = String::from_utf8_lossy(&o.stdout);

@@ -12,17 +12,17 @@ use std::process::{Command, Output};
 mod common;
 use common::{repo, resume, weft, SMALL_CRUMPLE};
 
+/// The summary line of a run that succeeded — the only line: only rank 0
+/// prints.
 fn summary(o: &Output) -> serde_json::Value {
-    assert!(
-        o.status.success(),
-        "weft failed: {:?}\n{}",
-        o.status,
-        String::from_utf8_lossy(&o.stderr)
-    );
     let text = String::from_utf8_lossy(&o.stdout);
-    let lines: Vec<&str> = text.lines().collect();
-    assert_eq!(lines.len(), 1, "one summary line (rank 0 only):\n{text}");
-    serde_json::from_str(lines[0]).expect("JSON summary")
+    let s = common::summary(o);
+    assert_eq!(
+        text.lines().count(),
+        1,
+        "one summary line (rank 0 only):\n{text}"
+    );
+    s
 }
 
 /// The files a rank count must not change.

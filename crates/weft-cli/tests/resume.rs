@@ -12,7 +12,7 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{repo, resume, weft, SMALL_CRUMPLE};
+use common::{repo, resume, summary, weft, SMALL_CRUMPLE};
 
 /// The small `crumple`, writing PLY and VTK frames.
 const FORMATS: &[&str] = &["--set", "output.formats=[\"ply\",\"vtk\"]"];
@@ -31,17 +31,6 @@ fn fresh_run(out: &Path, failpoint: Option<&str>, extra: &[&str]) -> Output {
         c.env("WEFT_FAILPOINT", f);
     }
     c.output().expect("weft runs")
-}
-
-fn summary(o: &Output) -> serde_json::Value {
-    assert!(
-        o.status.success(),
-        "weft failed: {:?}\n{}",
-        o.status,
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let text = String::from_utf8_lossy(&o.stdout);
-    serde_json::from_str(text.lines().last().expect("a summary line")).expect("JSON summary")
 }
 
 /// Every file whose bytes a resume must reproduce.

@@ -43,3 +43,15 @@ pub fn resume(out: &Path, extra: &[&str]) -> Output {
         .output()
         .expect("weft runs")
 }
+
+/// The JSON summary (last line) of a run that succeeded.
+pub fn summary(o: &Output) -> serde_json::Value {
+    assert!(
+        o.status.success(),
+        "weft failed: {:?}\n{}",
+        o.status,
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let text = String::from_utf8_lossy(&o.stdout);
+    serde_json::from_str(text.lines().last().expect("a summary line")).expect("JSON summary")
+}
