@@ -14,3 +14,4 @@ pub mod ribbon;
 pub mod shapes;
 pub mod strain;
 pub mod tri_tri;
+pub mod voxel;

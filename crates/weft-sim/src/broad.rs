@@ -12,17 +12,35 @@
 //! must have overlapping DOPs of their own (inflated likewise).
 
 //!
+//! # Two levels: within a partition, across partitions
+//!
+//! As in the paper (§III-B), collisions within a partition and among
+//! partitions are found differently. The triangles are grouped — one group per
+//! cloth partition, one for the obstacles ([`BroadPhase::grouped`]) — and each
+//! group has a BVH of its own: its self-traversal finds the pairs within it.
+//! Each group's root bound is its *window hull*; the overlapping hull pairs
+//! come from a voxel grid ([`weft_geom::voxel::overlapping_pairs`]: exactly
+//! the pairs whose hulls overlap), and a two-tree traversal of each such pair
+//! finds the pairs across groups. A pair of overlapping leaves in two groups
+//! has overlapping hulls (a hull is the exact `min` / `max` union of its
+//! leaves), so together these report exactly the overlapping leaf pairs of one
+//! tree over all triangles, for any grouping. One exception, which changes no
+//! stencil: a group all of whose vertices are kinematic (the obstacles) skips
+//! its self-traversal, whose stencils would all be dropped.
+//!
 //! # On an executor
 //!
 //! [`BroadPhase::candidates_on`] computes the vertex and triangle DOPs in fixed
-//! runs of [`RUN`] elements (each element is a function of its inputs alone),
-//! refits the tree serially (`O(n)`), and splits the self-traversal into at
-//! least [`MIN_TASKS`] node pairs ([`Bvh::self_overlap_tasks`]); each task
-//! generates the stencils of its triangle pairs, applies the stencil-level filter
-//! to each as it is generated, and sorts and deduplicates the survivors. The
-//! tasks' keys are then concatenated, sorted and deduplicated. The filter is a
-//! pure function of the key ([`primitives_overlap`]), so filtering before
-//! deduplication keeps the same set.
+//! runs of [`RUN`] elements (each element is a function of its inputs alone)
+//! and refits the groups' trees one group per task. The traversals are split
+//! into node-pair tasks ([`Bvh::self_overlap_tasks_into`],
+//! [`Bvh::cross_overlap_tasks_into`]), each group (pair) getting a share of
+//! [`MIN_TASKS`] by its size; each task generates the stencils of its triangle
+//! pairs, applies the stencil-level filter to each as it is generated, and
+//! sorts and deduplicates the survivors. The tasks' keys are then
+//! concatenated, sorted and deduplicated. The filter is a pure function of the
+//! key ([`primitives_overlap`]), so filtering before deduplication keeps the
+//! same set.
 //!
 //! The filter reads DOPs inflated once per vertex instead of inflating each
 //! primitive's hull, with the same answers bit for bit: per direction,
@@ -35,12 +53,15 @@
 //! (non-finite positions) the filter falls back to [`primitives_overlap`].
 //!
 //! Which task finds a pair, and in which order tasks run, changes nothing: the
-//! result is the sorted set of keys, the same on every executor and as a
-//! serial pass.
+//! result is the sorted set of keys, the same on every executor, for every
+//! grouping, and as a serial pass.
+
+use std::collections::BTreeMap;
 
 use weft_core::{StencilKey, StencilKind};
 use weft_geom::bvh::Bvh;
 use weft_geom::dop::Dop26;
+use weft_geom::voxel::overlapping_pairs;
 
 use crate::executor::{CommError, Executor, Serial};
 use crate::trajectory::Trajectories;
@@ -48,25 +69,53 @@ use crate::trajectory::Trajectories;
 /// Vertices (or triangles) per DOP task.
 pub const RUN: usize = 1024;
 
-/// Traversal tasks requested from the BVH (8 × 64: many more than threads, so
-/// work stealing evens out their unequal sizes).
+/// Traversal tasks requested in all (8 × 64: many more than threads, so work
+/// stealing evens out their unequal sizes), shared among the groups and the
+/// group pairs by size.
 pub const MIN_TASKS: usize = 512;
 
 /// Reusable broad-phase workspace.
 #[derive(Clone, Debug, Default)]
 pub struct BroadPhase {
+    /// group of each triangle as given to [`BroadPhase::grouped`] (empty: one
+    /// group).
+    labels: Vec<u32>,
+    /// the groups' trees, built on the first pass over a mesh.
+    groups: Vec<Group>,
     /// per vertex: the DOP of its breakpoints, and that DOP inflated.
     vertex_dops: Vec<[Dop26; 2]>,
     tri_dops: Vec<Dop26>,
-    bvh: Option<Bvh>,
     /// chunk bounds of the current parallel step.
     bounds: Vec<usize>,
-    /// traversal tasks (node pairs).
-    tasks: Vec<(u32, u32)>,
+    /// traversal tasks.
+    tasks: Vec<Task>,
     /// one output buffer per traversal task (kept across calls).
     outs: Vec<TaskOut>,
     /// Triangle pairs found by the last pass.
     pub last_pairs: usize,
+    /// Overlapping group pairs (window hulls) of the last pass.
+    pub last_group_pairs: Vec<(u32, u32)>,
+}
+
+/// The triangles of one group and their tree.
+#[derive(Clone, Debug, Default)]
+struct Group {
+    /// triangle ids, ascending (tree leaf `i` is triangle `members[i]`).
+    members: Vec<u32>,
+    /// every vertex of every member is kinematic (set every pass).
+    kinematic: bool,
+    /// the members' leaves of this pass, in member order.
+    leaves: Vec<Dop26>,
+    bvh: Bvh,
+}
+
+/// A traversal task: node pair `nodes` of group `a`'s tree with itself
+/// (`a == b`) or with group `b`'s tree.
+#[derive(Clone, Copy, Debug)]
+struct Task {
+    a: u32,
+    b: u32,
+    nodes: (u32, u32),
 }
 
 /// What one traversal task found.
@@ -79,6 +128,17 @@ struct TaskOut {
 }
 
 impl BroadPhase {
+    /// A workspace whose triangles are grouped by `labels` (one label per
+    /// triangle: its partition, or `NONE` for an obstacle triangle). Any
+    /// grouping gives the same candidates; a group is the unit of the local
+    /// trees and of the window hulls.
+    pub fn grouped(labels: &[u32]) -> Self {
+        Self {
+            labels: labels.to_vec(),
+            ..Self::default()
+        }
+    }
+
     /// Candidate stencils of the window whose trajectories are `traj`, on the
     /// calling thread (`candidates_on(&Serial, ..)`).
     pub fn candidates(
@@ -95,8 +155,12 @@ impl BroadPhase {
     /// Candidate stencils of the window whose trajectories are `traj`, computed
     /// on `exec`: sorted, deduplicated, the same on every executor.
     ///
-    /// The DOPs and the tree are computed on every rank; the traversal tasks
+    /// The DOPs and the trees are computed on every rank; the traversal tasks
     /// are spread over the ranks ([`Executor::chunks_on_ranks`]).
+    ///
+    /// # Panics
+    /// If the workspace was [`grouped`](BroadPhase::grouped) with a label
+    /// count other than `triangles.len()`.
     pub fn candidates_on<E: Executor>(
         &mut self,
         exec: &E,
@@ -105,14 +169,26 @@ impl BroadPhase {
         traj: &Trajectories,
         inflate: f64,
     ) -> Result<Vec<StencilKey>, CommError> {
+        assert!(
+            self.labels.is_empty() || self.labels.len() == triangles.len(),
+            "broad phase grouped for {} triangles, called with {}",
+            self.labels.len(),
+            triangles.len()
+        );
+        let leaf_count: usize = self.groups.iter().map(|g| g.members.len()).sum();
+        if leaf_count != triangles.len() {
+            self.groups = make_groups(&self.labels, triangles.len());
+        }
         let Self {
+            labels: _,
+            groups,
             vertex_dops,
             tri_dops,
-            bvh,
             bounds,
             tasks,
             outs,
             last_pairs,
+            last_group_pairs,
         } = self;
 
         // Vertex DOPs: every breakpoint of the vertex in the window.
@@ -143,23 +219,38 @@ impl BroadPhase {
             }
         });
 
-        let bvh = match bvh {
-            Some(b) if b.len() == tri_dops.len() => {
-                b.refit(tri_dops);
-                b
+        // Each group's tree: built on the first pass, refitted after.
+        let td: &[Dop26] = tri_dops;
+        bounds.clear();
+        bounds.extend(0..=groups.len());
+        exec.for_each_chunk(groups, bounds, &|_, chunk: &mut [Group]| {
+            let g = &mut chunk[0];
+            g.kinematic = g.members.iter().all(|&t| {
+                triangles[t as usize]
+                    .iter()
+                    .all(|&v| inv_mass[v as usize] <= 0.0)
+            });
+            g.leaves.clear();
+            g.leaves.extend(g.members.iter().map(|&t| td[t as usize]));
+            if g.bvh.len() == g.leaves.len() {
+                g.bvh.refit(&g.leaves);
+            } else {
+                g.bvh = Bvh::build(&g.leaves);
             }
-            slot => slot.insert(Bvh::build(tri_dops)),
-        };
+        });
 
-        // Traversal tasks, each with its own output buffer.
-        bvh.self_overlap_tasks_into(MIN_TASKS, tasks);
+        // Window hulls, their overlapping pairs, and the traversal tasks.
+        let hulls: Vec<Dop26> = groups.iter().map(|g| g.bvh.root_bounds()).collect();
+        *last_group_pairs = overlapping_pairs(&hulls);
+        make_tasks(groups, last_group_pairs, triangles.len(), tasks);
+
         let n = tasks.len();
         if outs.len() < n {
             outs.resize_with(n, TaskOut::default);
         }
         bounds.clear();
         bounds.extend(0..=n);
-        let (bvh, tasks, td): (&Bvh, &[(u32, u32)], &[Dop26]) = (bvh, tasks, tri_dops);
+        let (groups, tasks): (&[Group], &[Task]) = (groups, tasks);
         let filter = Filter {
             triangles,
             inv_mass,
@@ -172,10 +263,18 @@ impl BroadPhase {
             let out = &mut chunk[0];
             out.keys.clear();
             out.pairs = 0;
-            bvh.overlaps_from(tasks[k], |a, b| {
+            let Task { a, b, nodes } = tasks[k];
+            let (ga, gb) = (&groups[a as usize], &groups[b as usize]);
+            let mut found = |i: u32, j: u32| {
                 out.pairs += 1;
-                filter.stencils_of_pair(a as usize, b as usize, &mut out.keys);
-            });
+                let (ta, tb) = (ga.members[i as usize], gb.members[j as usize]);
+                filter.stencils_of_pair(ta as usize, tb as usize, &mut out.keys);
+            };
+            if a == b {
+                ga.bvh.overlaps_from(nodes, &mut found);
+            } else {
+                ga.bvh.overlaps_with_from(&gb.bvh, nodes, &mut found);
+            }
             out.keys.sort_unstable();
             out.keys.dedup();
         })?;
@@ -189,6 +288,54 @@ impl BroadPhase {
         keys.sort();
         keys.dedup();
         Ok(keys)
+    }
+}
+
+/// The groups of `labels` (one group per distinct label, in label order; all
+/// `triangles` in one group when `labels` is empty), with empty trees.
+fn make_groups(labels: &[u32], triangles: usize) -> Vec<Group> {
+    let mut by_label: BTreeMap<u32, Vec<u32>> = BTreeMap::new();
+    for t in 0..triangles {
+        let label = labels.get(t).copied().unwrap_or(0);
+        by_label.entry(label).or_default().push(t as u32);
+    }
+    by_label
+        .into_values()
+        .map(|members| Group {
+            members,
+            ..Group::default()
+        })
+        .collect()
+}
+
+/// The traversal tasks of one pass: each group's self-traversal (skipped for
+/// a kinematic group) and each overlapping group pair's two-tree traversal
+/// (skipped when both are kinematic), split into node-pair tasks — a share of
+/// [`MIN_TASKS`] proportional to the group's size, or to the smaller group's
+/// for a pair (a traversal of two trees descends no deeper than the smaller).
+fn make_tasks(groups: &[Group], pairs: &[(u32, u32)], leaves: usize, tasks: &mut Vec<Task>) {
+    tasks.clear();
+    let share = |n: usize| (MIN_TASKS * n).div_ceil(leaves.max(1));
+    let mut nodes = Vec::new();
+    for (g, group) in groups.iter().enumerate() {
+        if group.kinematic {
+            continue;
+        }
+        group
+            .bvh
+            .self_overlap_tasks_into(share(group.members.len()), &mut nodes);
+        let g = g as u32;
+        tasks.extend(nodes.iter().map(|&nodes| Task { a: g, b: g, nodes }));
+    }
+    for &(a, b) in pairs {
+        let (ga, gb) = (&groups[a as usize], &groups[b as usize]);
+        if ga.kinematic && gb.kinematic {
+            continue;
+        }
+        let smaller = ga.members.len().min(gb.members.len());
+        ga.bvh
+            .cross_overlap_tasks_into(&gb.bvh, share(smaller), &mut nodes);
+        tasks.extend(nodes.iter().map(|&nodes| Task { a, b, nodes }));
     }
 }
 
@@ -505,6 +652,59 @@ mod tests {
             );
         }
         assert!(total > 1000, "scenes too sparse ({total} candidates)");
+    }
+
+    #[test]
+    fn any_grouping_gives_the_same_candidates() {
+        use weft_core::NONE;
+        for (seed, res, steps, inflate) in [(5, 16, 2, 0.01), (6, 30, 2, 0.02)] {
+            let (tris, mut inv_mass, traj) = crumpled(seed, res, steps);
+            // an obstacle: the first rows of triangles kinematic
+            for t in &tris[..4 * res] {
+                for &v in t {
+                    inv_mass[v as usize] = 0.0;
+                }
+            }
+            let (expected, pairs) = brute_force(&tris, &inv_mass, &traj, inflate);
+            let mut rng = Rng(seed);
+            let kinematic = |t: &[u32; 3]| t.iter().all(|&v| inv_mass[v as usize] <= 0.0);
+            let groupings: Vec<(&str, Vec<u32>)> = vec![
+                (
+                    "blocks of 7",
+                    (0..tris.len() as u32).map(|t| t / 7).collect(),
+                ),
+                (
+                    "random of 5",
+                    tris.iter().map(|_| rng.below(5) as u32).collect(),
+                ),
+                ("one each", (0..tris.len() as u32).collect()),
+                (
+                    "kinematic apart",
+                    tris.iter()
+                        .enumerate()
+                        .map(|(t, tri)| if kinematic(tri) { NONE } else { t as u32 / 40 })
+                        .collect(),
+                ),
+            ];
+            for (name, labels) in groupings {
+                let mut bp = BroadPhase::grouped(&labels);
+                for pass in 0..2 {
+                    let got = bp
+                        .candidates_on(&Backwards, &tris, &inv_mass, &traj, inflate)
+                        .unwrap();
+                    assert_eq!(got, expected, "{name}, pass {pass}: res {res}");
+                    assert!(bp.last_pairs <= pairs, "{name}");
+                }
+                match name {
+                    // the obstacle's own pairs are not traversed
+                    "kinematic apart" => assert!(bp.last_pairs < pairs, "{name}: res {res}"),
+                    // no kinematic group (nor pair of them)
+                    "random of 5" => assert_eq!(bp.last_pairs, pairs, "{name}"),
+                    _ => {}
+                }
+                assert!(!bp.last_group_pairs.is_empty(), "{name}");
+            }
+        }
     }
 
     #[test]

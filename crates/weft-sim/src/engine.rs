@@ -280,6 +280,7 @@ impl<E: Executor> Engine<E> {
                     .map(|k| (k * VERTEX_RUN).min(n))
                     .collect(),
                 bounds: world.internal.slot_bounds(),
+                broad: BroadPhase::grouped(&world.partitioning.of_triangle),
                 ..Default::default()
             },
             world,

@@ -11,7 +11,10 @@
 //!   (`traverse.rs`): simultaneous descent with an explicit stack; the self
 //!   descent also splits into independent tasks
 //!   ([`self_overlap_tasks`](Bvh::self_overlap_tasks), each run by
-//!   [`overlaps_from`](Bvh::overlaps_from)) for parallel callers;
+//!   [`overlaps_from`](Bvh::overlaps_from)) for parallel callers, and so
+//!   does the descent of two trees
+//!   ([`cross_overlap_tasks_into`](Bvh::cross_overlap_tasks_into), each run
+//!   by [`overlaps_with_from`](Bvh::overlaps_with_from));
 //! * [`validate`](Bvh::validate) (`validate.rs`): structural and bounding checks
 //!   for tests.
 //!

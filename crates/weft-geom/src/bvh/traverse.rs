@@ -126,19 +126,77 @@ impl Bvh {
 
     /// Calls `f(i, j)` once for every leaf `i` of `self` and leaf `j` of `other`
     /// whose DOPs overlap. The call order is deterministic but unspecified.
-    pub fn overlaps_with(&self, other: &Bvh, mut f: impl FnMut(u32, u32)) {
+    pub fn overlaps_with(&self, other: &Bvh, f: impl FnMut(u32, u32)) {
+        if self.roots_overlap(other) {
+            self.overlaps_with_from(other, (0, 0), f);
+        }
+    }
+
+    /// Splits [`overlaps_with`](Bvh::overlaps_with)`(other, ..)` into
+    /// independent tasks, as [`self_overlap_tasks_into`](Bvh::self_overlap_tasks_into)
+    /// does for the self-descent: the node pairs (`a` in `self`, `b` in
+    /// `other`) reached by expanding the root pair breadth-first until there
+    /// are at least `min_tasks` of them or only leaf pairs are left. Running
+    /// [`overlaps_with_from`](Bvh::overlaps_with_from) on every task reports
+    /// every overlapping leaf pair exactly once in total (the subtrees of pair
+    /// space below the tasks are disjoint and cover the whole descent).
+    ///
+    /// `tasks` is cleared first; empty when either tree is empty or the roots
+    /// do not overlap.
+    pub fn cross_overlap_tasks_into(
+        &self,
+        other: &Bvh,
+        min_tasks: usize,
+        tasks: &mut Vec<(u32, u32)>,
+    ) {
+        tasks.clear();
+        if !self.roots_overlap(other) {
+            return;
+        }
+        // Same queue discipline as the self version: `tasks[..done]` are leaf
+        // pairs, `tasks[head..]` the pairs still to expand.
+        tasks.push((0, 0));
+        let (mut done, mut head) = (0, 0);
+        let mut children = Vec::with_capacity(2);
+        while head < tasks.len() && done + (tasks.len() - head) < min_tasks {
+            let (a, b) = tasks[head];
+            head += 1;
+            let (na, nb) = (self.nodes[a as usize], other.nodes[b as usize]);
+            if na.is_leaf() && nb.is_leaf() {
+                tasks.swap(done, head - 1);
+                done += 1;
+                continue;
+            }
+            children.clear();
+            self.descend_pair(other, a, na, b, nb, &mut children, &mut |_, _| {
+                unreachable!("an internal pair tests no leaves")
+            });
+            tasks.extend_from_slice(&children);
+        }
+        tasks.drain(done..head);
+    }
+
+    /// Calls `f(i, j)` (`i` a leaf of `self`, `j` of `other`) once for every
+    /// pair of overlapping leaves found by the descent from the node pair
+    /// `task` (one of [`cross_overlap_tasks_into`](Bvh::cross_overlap_tasks_into);
+    /// `(0, 0)` is the whole descent when the roots overlap).
+    pub fn overlaps_with_from(&self, other: &Bvh, task: (u32, u32), mut f: impl FnMut(u32, u32)) {
         if self.nodes.is_empty() || other.nodes.is_empty() {
             return;
         }
-        if !self.bounds[0].overlaps(&other.bounds[0]) {
-            return;
-        }
-        let mut stack: Vec<(u32, u32)> = vec![(0, 0)];
+        let mut stack: Vec<(u32, u32)> = vec![task];
         while let Some((a, b)) = stack.pop() {
             let na = self.nodes[a as usize];
             let nb = other.nodes[b as usize];
             self.descend_pair(other, a, na, b, nb, &mut stack, &mut f);
         }
+    }
+
+    /// Both trees are non-empty and their root bounds overlap.
+    fn roots_overlap(&self, other: &Bvh) -> bool {
+        !self.nodes.is_empty()
+            && !other.nodes.is_empty()
+            && self.bounds[0].overlaps(&other.bounds[0])
     }
 
     /// One step for a pair of overlapping nodes from disjoint subtrees (`a` in
