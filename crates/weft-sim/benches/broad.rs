@@ -1,7 +1,8 @@
 //! Broad-phase wall time on a folded 50k-triangle grid with trajectories:
 //! `Serial` against a small scoped-thread executor with 1 and 2 threads
 //! (weft-sim cannot use weft-par's `Threads`; `weft bench` times the real one
-//! inside whole windows).
+//! inside whole windows), with all triangles in one tree and grouped as 64
+//! and 256 partitions would be (contiguous runs: rows of the grid).
 //!
 //! `cargo bench -p weft-sim --bench broad`
 
@@ -105,8 +106,18 @@ fn folded(res: usize, steps: u64) -> (Vec<[u32; 3]>, Vec<f64>, Trajectories, f64
     (mesh.triangles, inv_mass, traj, 0.25 * h)
 }
 
-fn time<E: Executor>(exec: &E, tris: &[[u32; 3]], m: &[f64], traj: &Trajectories, inflate: f64) {
-    let mut bp = BroadPhase::default();
+fn time<E: Executor>(
+    exec: &E,
+    groups: usize,
+    tris: &[[u32; 3]],
+    m: &[f64],
+    traj: &Trajectories,
+    inflate: f64,
+) {
+    let labels: Vec<u32> = (0..tris.len())
+        .map(|t| (t * groups / tris.len()) as u32)
+        .collect();
+    let mut bp = BroadPhase::grouped(&labels);
     let mut n = bp
         .candidates_on(exec, tris, m, traj, inflate)
         .unwrap()
@@ -121,10 +132,11 @@ fn time<E: Executor>(exec: &E, tris: &[[u32; 3]], m: &[f64], traj: &Trajectories
         best = best.min(t.elapsed().as_secs_f64());
     }
     println!(
-        "{:>10}: {:8.2} ms (best of 7, warm workspace; {} pairs, {} candidates)",
+        "{:>10}, {groups:>3} groups: {:8.2} ms (best of 7, warm workspace; {} pairs, {} hull pairs, {} candidates)",
         exec.name(),
         best * 1e3,
         bp.last_pairs,
+        bp.last_group_pairs.len(),
         n
     );
 }
@@ -194,7 +206,9 @@ fn main() {
         traj.breakpoints()
     );
     stages(&tris, &m, &traj, inflate);
-    time(&Serial, &tris, &m, &traj, inflate);
-    time(&Scoped(1), &tris, &m, &traj, inflate);
-    time(&Scoped(2), &tris, &m, &traj, inflate);
+    for groups in [1, 64, 256] {
+        time(&Serial, groups, &tris, &m, &traj, inflate);
+        time(&Scoped(1), groups, &tris, &m, &traj, inflate);
+        time(&Scoped(2), groups, &tris, &m, &traj, inflate);
+    }
 }
