@@ -208,6 +208,71 @@ fn all_gather_over_mpi_on_three_ranks() {
     drop(transport);
 }
 
+/// What rank `from` sends rank `to` in exchange round `round`.
+fn message(from: usize, to: usize, round: usize) -> Vec<u8> {
+    let mut bytes = part(from, round + to);
+    bytes.iter_mut().for_each(|b| *b ^= to as u8);
+    bytes
+}
+
+#[test]
+fn exchange_over_mpi_on_three_ranks() {
+    if !is_child() {
+        let run = mpirun("exchange_over_mpi_on_three_ranks");
+        assert!(run.status.is_some_and(|s| s.success()), "{}", run.report());
+        for rank in 0..RANKS {
+            assert!(
+                run.stdout
+                    .contains(&format!("rank {rank}/{RANKS}: {ROUNDS} exchanges ok")),
+                "rank {rank} did not report\n{}",
+                run.report()
+            );
+        }
+        return;
+    }
+
+    let transport = MpiTransport::init().expect("initialize MPI");
+    let (rank, size) = (transport.rank(), transport.size());
+    let mut expected_bytes = 0u64;
+    for round in 0..ROUNDS {
+        // Even rounds: every rank to every other; odd rounds: a ring (to the
+        // next rank, from the previous), as partitions' neighbours would.
+        let peers: Vec<(usize, usize)> = if round % 2 == 0 {
+            (0..size).filter(|&j| j != rank).map(|j| (j, j)).collect()
+        } else {
+            vec![((rank + 1) % size, (rank + size - 1) % size)]
+        };
+        let sends: Vec<(usize, Vec<u8>)> = peers
+            .iter()
+            .map(|&(to, _)| (to, message(rank, to, round)))
+            .collect();
+        let recvs: Vec<(usize, usize)> = peers
+            .iter()
+            .map(|&(_, from)| (from, message(from, rank, round).len()))
+            .collect();
+        expected_bytes += sends.iter().map(|(_, b)| b.len() as u64).sum::<u64>();
+        let mut overlapped = 0;
+        let got = transport
+            .exchange(sends, &recvs, &mut || overlapped += 1)
+            .expect("exchange");
+        assert_eq!(overlapped, 1);
+        for (&(from, _), bytes) in recvs.iter().zip(&got) {
+            assert!(
+                bytes == &message(from, rank, round),
+                "rank {rank}, round {round}: the message from rank {from} differs"
+            );
+        }
+        // A collective between exchanges must not be confused with them.
+        let all = transport.all_gather(vec![round as u8; rank]).expect("all_gather");
+        assert_eq!(all[(rank + 1) % size], vec![round as u8; (rank + 1) % size]);
+    }
+    let exchanged = transport.traffic().bytes - (ROUNDS * (size - 1) * rank) as u64;
+    assert_eq!(exchanged, expected_bytes);
+    transport.barrier();
+    println!("rank {rank}/{size}: {ROUNDS} exchanges ok");
+    drop(transport);
+}
+
 #[test]
 fn abort_on_one_rank_ends_every_rank() {
     if !is_child() {

@@ -53,8 +53,7 @@ fn ranks_match_the_shared_fold_bit_for_bit() {
         // The cloth moved: the comparison is not of untouched data.
         assert!(cloth.clone().any(|i| x0[i as usize] != w.x[i as usize]));
         for ranks in 1..=4 {
-            let placement = ranks::place_partitions(&w, ranks);
-            let plans = ranks::plan(&w, &placement, ranks);
+            let plans = ranks::plan(&w, ranks);
             let (x, v, traffic) = ranks::run_ticks(&w, &plans, TICKS);
             for i in cloth.clone() {
                 let i = i as usize;
@@ -89,8 +88,7 @@ fn ranks_match_the_shared_fold_bit_for_bit() {
 #[test]
 fn a_missing_ghost_poisons_the_result() {
     let w = world(16);
-    let placement = ranks::place_partitions(&w, 2);
-    let mut plans = ranks::plan(&w, &placement, 2);
+    let mut plans = ranks::plan(&w, 2);
     // Rank 1 forgets the first ghost it should receive from rank 0 (and rank
     // 0 stops sending it).
     let lost = plans[1].recv_state.get_mut(&0).unwrap().remove(0);

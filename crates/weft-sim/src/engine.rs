@@ -702,20 +702,22 @@ impl<E: Executor> Engine<E> {
                         *p = Self::pos_at(w, k * VERTEX_RUN + j, t);
                     }
                 });
-            // Over ranks: this rank's partitions, then the boundary slots
-            // the others computed; it folds only the vertices it owns.
+            // Over ranks (Algorithm 1): this rank's boundary partitions, then
+            // their slots go to the neighbours that fold them while the
+            // interior partitions are evaluated, then the neighbours' slots
+            // come in; it folds only the vertices it owns.
             let share = self.share.as_ref();
-            let own_partition = share.map(|s| &s.own_partition[..]);
-            w.internal.evaluate(
-                &self.exec,
-                &ws.bounds,
-                &ws.xt,
-                &w.v,
-                &mut ws.out,
-                own_partition,
-            );
-            if let Some(share) = share {
-                share.exchange_slots(&self.exec, &mut ws.out)?;
+            let (exec, bounds, xt) = (&self.exec, &ws.bounds, &ws.xt);
+            match share {
+                None => w.internal.evaluate(exec, bounds, xt, &w.v, &mut ws.out, None),
+                Some(share) => {
+                    let boundary = Some(&share.boundary_partition[..]);
+                    w.internal.evaluate(exec, bounds, xt, &w.v, &mut ws.out, boundary);
+                    share.exchange_slots(exec, &mut ws.out, &mut |out| {
+                        let interior = Some(&share.interior_partition[..]);
+                        w.internal.evaluate(exec, bounds, xt, &w.v, out, interior);
+                    })?;
+                }
             }
             let own_vertex = share.map(|s| &s.own_vertex[..]);
             let h = w.lattice.h_el();

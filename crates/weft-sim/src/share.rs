@@ -5,18 +5,22 @@
 //! ([`crate::internal::InternalForces::home_ranks`]), and folds and advances
 //! the vertices it *owns*: the cloth vertices whose home partition is placed
 //! on it, and a block of the others (obstacle vertices). Per internal tick
-//! two exchanges keep every rank's state whole (Algorithm 1's messages, as
-//! collectives):
+//! two exchanges keep every rank's state whole:
 //!
-//! 1. **boundary slots**: each rank sends the output slots it computed that
-//!    a vertex owned elsewhere folds — only stencils along partition
-//!    boundaries between ranks;
-//! 2. **new velocities** of the owned vertices, so every rank can apply the
-//!    tick to every vertex (positions, trajectories) as on one memory.
+//! 1. **boundary slots**, point to point (Algorithm 1 of the paper): each
+//!    rank sends each neighbour the output slots it computed that a vertex
+//!    the neighbour owns folds. The *boundary* partitions (those computing
+//!    such a slot) are evaluated first, their slots sent, and the *interior*
+//!    partitions evaluated while the messages travel;
+//! 2. **new velocities** of the owned vertices, to every rank (a
+//!    collective), so every rank can apply the tick to every vertex
+//!    (positions, trajectories) as on one memory.
 //!
 //! Each value is computed once, by its owner, and copied with its exact
 //! bits; every fold reads the same slots in the same key order as on one
 //! memory. So the bits do not change with the rank count.
+
+use std::collections::BTreeMap;
 
 use glam::DVec3;
 use weft_core::NONE;
@@ -31,13 +35,21 @@ pub struct RankShare {
     pub ranks: usize,
     /// Per partition: the rank it is placed on (its home rank).
     pub home: Vec<u32>,
-    /// Per partition: evaluated on this rank.
-    pub own_partition: Vec<bool>,
+    /// Per partition: evaluated on this rank and computes a slot another
+    /// rank folds (evaluated first; its slots travel).
+    pub boundary_partition: Vec<bool>,
+    /// Per partition: evaluated on this rank, all its slots folded here
+    /// (evaluated while the boundary slots travel).
+    pub interior_partition: Vec<bool>,
     /// Per vertex: folded and advanced on this rank.
     pub own_vertex: Vec<bool>,
-    /// Per rank: the slots it sends (ascending): computed there, folded by a
-    /// vertex another rank owns.
-    pub sends: Vec<Vec<u32>>,
+    /// Per peer rank (ascending): the slots this rank computes that the
+    /// peer's vertices fold (ascending).
+    pub send_slots: Vec<(usize, Vec<u32>)>,
+    /// Per peer rank (ascending): the slots the peer computes that this
+    /// rank's vertices fold (ascending; the peer's `send_slots` for this
+    /// rank).
+    pub recv_slots: Vec<(usize, Vec<u32>)>,
     /// Per rank: the vertices it owns (ascending).
     pub owned: Vec<Vec<u32>>,
 }
@@ -56,44 +68,82 @@ impl RankShare {
                 _ => blocks[i],
             })
             .collect();
-        let mut slot_rank = vec![0u32; internal.partitions.last().map_or(0, |p| p.slots.end)];
+        let mut slot_partition = vec![0u32; internal.num_slots()];
         for (p, part) in internal.partitions.iter().enumerate() {
-            slot_rank[part.slots.clone()].fill(home[p]);
+            slot_partition[part.slots.clone()].fill(p as u32);
         }
-        let mut sends = vec![Vec::new(); ranks];
+        // (from, to) → slots computed on `from`, folded on `to`.
+        let mut travel: BTreeMap<(usize, usize), Vec<u32>> = BTreeMap::new();
         let mut owned = vec![Vec::new(); ranks];
         for i in 0..n {
-            owned[owner[i] as usize].push(i as u32);
+            let to = owner[i] as usize;
+            owned[to].push(i as u32);
             for &s in internal.incidence(i) {
-                let from = slot_rank[s as usize];
-                if from != owner[i] {
-                    sends[from as usize].push(s);
+                let from = home[slot_partition[s as usize] as usize] as usize;
+                if from != to {
+                    travel.entry((from, to)).or_default().push(s);
                 }
             }
         }
-        for list in &mut sends {
-            list.sort_unstable();
-            list.dedup();
+        let mut boundary_partition = vec![false; home.len()];
+        let mut send_slots = Vec::new();
+        let mut recv_slots = Vec::new();
+        for ((from, to), mut slots) in travel {
+            slots.sort_unstable();
+            slots.dedup();
+            if from == rank {
+                for &s in &slots {
+                    boundary_partition[slot_partition[s as usize] as usize] = true;
+                }
+                send_slots.push((to, slots));
+            } else if to == rank {
+                recv_slots.push((from, slots));
+            }
         }
+        recv_slots.sort_unstable_by_key(|(from, _)| *from);
+        let interior_partition = (0..home.len())
+            .map(|p| home[p] as usize == rank && !boundary_partition[p])
+            .collect();
         RankShare {
             rank,
             ranks,
-            own_partition: home.iter().map(|&r| r as usize == rank).collect(),
+            boundary_partition,
+            interior_partition,
             home,
             own_vertex: owner.iter().map(|&r| r as usize == rank).collect(),
-            sends,
+            send_slots,
+            recv_slots,
             owned,
         }
     }
 
-    /// **Collective.** Hands every rank the boundary slots the others
-    /// computed (exchange 1).
+    /// **Point to point with the neighbours.** Sends the boundary slots of
+    /// `out` (computed already) to the ranks whose vertices fold them, runs
+    /// `interior` while they travel, and writes the slots received into
+    /// `out` (exchange 1).
     pub fn exchange_slots<E: Executor>(
         &self,
         exec: &E,
         out: &mut [DVec3],
+        interior: &mut dyn FnMut(&mut [DVec3]),
     ) -> Result<(), CommError> {
-        self.exchange(exec, out, &self.sends)
+        let sends: Vec<(usize, Vec<DVec3>)> = self
+            .send_slots
+            .iter()
+            .map(|(peer, slots)| (*peer, slots.iter().map(|&k| out[k as usize]).collect()))
+            .collect();
+        let recvs: Vec<(usize, usize)> = self
+            .recv_slots
+            .iter()
+            .map(|(peer, slots)| (*peer, slots.len()))
+            .collect();
+        let received = exec.exchange_vectors(sends, &recvs, &mut || interior(out))?;
+        for ((_, slots), values) in self.recv_slots.iter().zip(received) {
+            for (&k, value) in slots.iter().zip(values) {
+                out[k as usize] = value;
+            }
+        }
+        Ok(())
     }
 
     /// **Collective.** Hands every rank the new velocities of the vertices
@@ -103,18 +153,8 @@ impl RankShare {
         exec: &E,
         v_new: &mut [DVec3],
     ) -> Result<(), CommError> {
-        self.exchange(exec, v_new, &self.owned)
-    }
-
-    /// Sends `data[lists[me]]`, and writes each peer `j`'s values into
-    /// `data[lists[j]]`.
-    fn exchange<E: Executor>(
-        &self,
-        exec: &E,
-        data: &mut [DVec3],
-        lists: &[Vec<u32>],
-    ) -> Result<(), CommError> {
-        let mine: Vec<DVec3> = lists[self.rank].iter().map(|&k| data[k as usize]).collect();
+        let lists = &self.owned;
+        let mine: Vec<DVec3> = lists[self.rank].iter().map(|&k| v_new[k as usize]).collect();
         let all = exec.all_gather_vectors(&mine)?;
         if all.len() != self.ranks {
             return Err(CommError(format!(
@@ -137,7 +177,7 @@ impl RankShare {
                 )));
             }
             for (&k, value) in lists[j].iter().zip(values) {
-                data[k as usize] = value;
+                v_new[k as usize] = value;
             }
         }
         Ok(())

@@ -204,41 +204,78 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         if self.transport.size() == 1 {
             return Ok(vec![mine.to_vec()]);
         }
-        // Raw little-endian bits: exact, and far cheaper than a generic
-        // encoding for what travels every internal tick.
-        let mut bytes = Vec::with_capacity(24 * mine.len());
-        for v in mine {
-            for x in v.to_array() {
-                bytes.extend_from_slice(&x.to_le_bytes());
-            }
-        }
         let me = self.rank();
-        let parts = self.transport.all_gather(bytes)?;
+        let parts = self.transport.all_gather(vector_bytes(mine))?;
         parts
             .into_iter()
             .enumerate()
             .map(|(j, part)| {
                 if j == me {
-                    return Ok(mine.to_vec());
+                    Ok(mine.to_vec())
+                } else {
+                    bytes_vectors(me, j, &part)
                 }
-                if part.len() % 24 != 0 {
-                    return Err(CommError(format!(
-                        "rank {me}: rank {j} sent {} bytes, not whole vectors",
-                        part.len()
-                    )));
-                }
-                Ok(part
-                    .chunks_exact(24)
-                    .map(|v| {
-                        let w = |k: usize| {
-                            f64::from_le_bytes(v[8 * k..8 * k + 8].try_into().expect("8 bytes"))
-                        };
-                        DVec3::new(w(0), w(1), w(2))
-                    })
-                    .collect())
             })
             .collect()
     }
+
+    fn exchange_vectors(
+        &self,
+        sends: Vec<(usize, Vec<DVec3>)>,
+        recvs: &[(usize, usize)],
+        overlap: &mut dyn FnMut(),
+    ) -> Result<Vec<Vec<DVec3>>, CommError> {
+        let me = self.rank();
+        let sends: Vec<(usize, Vec<u8>)> = sends
+            .into_iter()
+            .map(|(peer, values)| (peer, vector_bytes(&values)))
+            .collect();
+        let lens: Vec<(usize, usize)> = recvs.iter().map(|&(peer, n)| (peer, 24 * n)).collect();
+        let parts = self.transport.exchange(sends, &lens, overlap)?;
+        parts
+            .iter()
+            .zip(recvs)
+            .map(|(part, &(peer, n))| {
+                let values = bytes_vectors(me, peer, part)?;
+                if values.len() != n {
+                    return Err(CommError(format!(
+                        "rank {me}: rank {peer} sent {} vectors, {n} expected",
+                        values.len()
+                    )));
+                }
+                Ok(values)
+            })
+            .collect()
+    }
+}
+
+/// Raw little-endian bits (eight bytes per coordinate): exact, and far
+/// cheaper than a generic encoding for what travels every internal tick.
+fn vector_bytes(values: &[DVec3]) -> Vec<u8> {
+    let mut bytes = Vec::with_capacity(24 * values.len());
+    for v in values {
+        for x in v.to_array() {
+            bytes.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    bytes
+}
+
+/// The vectors of [`vector_bytes`], received by rank `me` from rank `from`.
+fn bytes_vectors(me: usize, from: usize, bytes: &[u8]) -> Result<Vec<DVec3>, CommError> {
+    if bytes.len() % 24 != 0 {
+        return Err(CommError(format!(
+            "rank {me}: rank {from} sent {} bytes, not whole vectors",
+            bytes.len()
+        )));
+    }
+    Ok(bytes
+        .chunks_exact(24)
+        .map(|v| {
+            let w = |k: usize| f64::from_le_bytes(v[8 * k..8 * k + 8].try_into().expect("8 bytes"));
+            DVec3::new(w(0), w(1), w(2))
+        })
+        .collect())
 }
 
 /// Runs `body` on `ranks` threads standing in for processes: each gets its

@@ -26,6 +26,7 @@ use std::time::Duration;
 
 use mpi::datatype::PartitionMut;
 use mpi::environment::Universe;
+use mpi::point_to_point::Status;
 use mpi::request::{Request, Scope};
 use mpi::traits::*;
 use mpi::{Count, Threading};
@@ -118,7 +119,7 @@ impl MpiTransport {
     /// this does not give up: a peer that never joins the collective hangs
     /// it (the launcher ends the run when a rank's process dies, and a rank
     /// that fails calls [`MpiTransport::abort`]).
-    fn complete<'a, D: ?Sized, S: Scope<'a>>(&self, mut request: Request<'a, D, S>) {
+    fn complete<'a, D: ?Sized, S: Scope<'a>>(&self, mut request: Request<'a, D, S>) -> Status {
         let mut backoff = Backoff::default();
         loop {
             let tested = {
@@ -126,7 +127,7 @@ impl MpiTransport {
                 request.test()
             };
             match tested {
-                Ok(_status) => return,
+                Ok(status) => return status,
                 Err(unfinished) => {
                     request = unfinished;
                     backoff.snooze();
@@ -241,10 +242,86 @@ impl Transport for MpiTransport {
         Ok(parts)
     }
 
+    /// **Point to point**: an `MPI_Isend` to each peer of `sends` and an
+    /// `MPI_Irecv` from each peer of `recvs` (tag [`EXCHANGE_TAG`]; MPI keeps
+    /// messages with one source, tag and communicator in order), then
+    /// `overlap` runs while they travel, then each is completed by polling.
+    /// The lengths are known to both sides, so no length travels first.
+    fn exchange(
+        &self,
+        sends: Vec<(usize, Vec<u8>)>,
+        recvs: &[(usize, usize)],
+        overlap: &mut dyn FnMut(),
+    ) -> Result<Vec<Vec<u8>>, RankFailure> {
+        let _collective = self
+            .collective
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let peer = |j: usize| {
+            mpi::Rank::try_from(j)
+                .ok()
+                .filter(|&r| j < self.size && j != self.rank && r >= 0)
+                .ok_or_else(|| self.failure(format!("no peer rank {j} to exchange with")))
+        };
+        for &(j, len) in recvs {
+            peer(j)?;
+            Count::try_from(len)
+                .map_err(|_| self.failure(format!("{len} bytes from rank {j}: too large for MPI")))?;
+        }
+        for (j, bytes) in &sends {
+            peer(*j)?;
+            Count::try_from(bytes.len()).map_err(|_| {
+                self.failure(format!("{} bytes to rank {j}: too large for MPI", bytes.len()))
+            })?;
+        }
+        let mut received: Vec<Vec<u8>> = recvs.iter().map(|&(_, len)| vec![0u8; len]).collect();
+        let counts = mpi::request::scope(|scope| {
+            let mut sent = Vec::with_capacity(sends.len());
+            for (j, bytes) in &sends {
+                let world = self.mpi_call().world();
+                sent.push(world.process_at_rank(*j as mpi::Rank).immediate_send_with_tag(
+                    scope,
+                    &bytes[..],
+                    EXCHANGE_TAG,
+                ));
+            }
+            let mut arriving = Vec::with_capacity(recvs.len());
+            for (&(j, _), buffer) in recvs.iter().zip(received.iter_mut()) {
+                let world = self.mpi_call().world();
+                arriving.push(
+                    world
+                        .process_at_rank(j as mpi::Rank)
+                        .immediate_receive_into_with_tag(scope, &mut buffer[..], EXCHANGE_TAG),
+                );
+            }
+            overlap();
+            let counts: Vec<Count> = arriving
+                .into_iter()
+                .map(|request| self.complete(request).count(u8::equivalent_datatype()))
+                .collect();
+            for request in sent {
+                self.complete(request);
+            }
+            counts
+        });
+        for (&(j, len), count) in recvs.iter().zip(counts) {
+            if usize::try_from(count).ok() != Some(len) {
+                return Err(self.failure(format!("rank {j} sent {count} bytes, {len} expected")));
+            }
+        }
+        for (_, bytes) in &sends {
+            self.sent.add(1, bytes.len() as u64);
+        }
+        Ok(received)
+    }
+
     fn traffic(&self) -> Traffic {
         self.sent.total()
     }
 }
+
+/// The tag of [`Transport::exchange`]'s messages.
+pub const EXCHANGE_TAG: mpi::Tag = 7;
 
 /// Waiting between polls: a few spins first (a collective among ranks on
 /// one machine often completes within microseconds), then yields, then

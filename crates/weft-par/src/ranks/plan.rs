@@ -9,9 +9,10 @@
 //! interior ones can run while the ghosts' positions are in flight
 //! (Algorithm 1 of Ni, Kale, Tamstorf 2015).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use weft_core::NONE;
+use weft_sim::share::RankShare;
 use weft_sim::World;
 
 /// Places partitions on `ranks` ranks: contiguous runs of partition ids with
@@ -44,9 +45,13 @@ pub struct RankPlan {
     pub recv_slots: BTreeMap<u32, Vec<u32>>,
 }
 
-/// The plans of all ranks for `world` with partitions on `rank_of_partition`.
-pub fn plan(world: &World, rank_of_partition: &[u32], ranks: usize) -> Vec<RankPlan> {
+/// The plans of all `ranks` ranks for `world`, with the partitions placed
+/// by [`place_partitions`]. Which slots travel between which ranks is the
+/// engine's own [`RankShare`] (the same lists the engine exchanges); the
+/// plan adds the ghosts, for ranks that hold only what they own.
+pub fn plan(world: &World, ranks: usize) -> Vec<RankPlan> {
     let internal = &world.internal;
+    let rank_of_partition = place_partitions(world, ranks);
     let owner = |i: u32| -> u32 {
         let p = world.partitioning.of_vertex[i as usize];
         if p == NONE {
@@ -56,16 +61,12 @@ pub fn plan(world: &World, rank_of_partition: &[u32], ranks: usize) -> Vec<RankP
         }
     };
     let mut plans = vec![RankPlan::default(); ranks];
-    // Slot → the rank that computes it.
-    let mut slot_rank = vec![0u32; internal.num_slots()];
     let mut boundary_parts: Vec<Vec<usize>> = vec![Vec::new(); ranks];
     let mut interior_parts: Vec<Vec<usize>> = vec![Vec::new(); ranks];
-    for (p, part) in internal.partitions.iter().enumerate() {
+    for p in 0..internal.partitions.len() {
         let r = rank_of_partition[p];
-        let verts = internal.slot_vertices(p);
         let mut reads_ghost = false;
-        for (k, &i) in verts.iter().enumerate() {
-            slot_rank[part.slots.start + k] = r;
+        for i in internal.slot_vertices(p) {
             let o = owner(i);
             if o != r {
                 reads_ghost = true;
@@ -79,42 +80,29 @@ pub fn plan(world: &World, rank_of_partition: &[u32], ranks: usize) -> Vec<RankP
             interior_parts[r as usize].push(p);
         }
     }
-    for i in 0..world.num_vertices() as u32 {
-        let o = owner(i);
-        if o == NONE {
-            continue;
-        }
-        let plan = &mut plans[o as usize];
-        plan.owned.push(i);
-        let mut remote = false;
-        for &s in internal.incidence(i as usize) {
-            let q = slot_rank[s as usize];
-            if q != o {
-                remote = true;
-                plans[q as usize].send_slots.entry(o).or_default().push(s);
-                plans[o as usize].recv_slots.entry(q).or_default().push(s);
+    for (r, plan) in plans.iter_mut().enumerate() {
+        let share = RankShare::new(world, r, ranks);
+        let peers = |lists: Vec<(usize, Vec<u32>)>| -> BTreeMap<u32, Vec<u32>> {
+            lists.into_iter().map(|(j, l)| (j as u32, l)).collect()
+        };
+        plan.send_slots = peers(share.send_slots);
+        plan.recv_slots = peers(share.recv_slots);
+        let remote: BTreeSet<u32> = plan.recv_slots.values().flatten().copied().collect();
+        for i in 0..world.num_vertices() as u32 {
+            if owner(i) != r as u32 {
+                continue;
+            }
+            plan.owned.push(i);
+            if internal.incidence(i as usize).iter().any(|s| remote.contains(s)) {
+                plan.boundary_vertices.push(i);
+            } else {
+                plan.interior_vertices.push(i);
             }
         }
-        let plan = &mut plans[o as usize];
-        if remote {
-            plan.boundary_vertices.push(i);
-        } else {
-            plan.interior_vertices.push(i);
-        }
-    }
-    for (r, plan) in plans.iter_mut().enumerate() {
         for list in plan
             .send_state
             .values_mut()
             .chain(plan.recv_state.values_mut())
-        {
-            list.sort_unstable();
-            list.dedup();
-        }
-        for list in plan
-            .send_slots
-            .values_mut()
-            .chain(plan.recv_slots.values_mut())
         {
             list.sort_unstable();
             list.dedup();

@@ -1,13 +1,19 @@
 //! How ranks talk: the one collective the distributed executor needs, and its
 //! in-process implementation over channels.
 //!
-//! [`Transport::all_gather`] is the only communication the [`crate::Ranks`]
-//! executor does: every rank contributes a byte string and receives every
-//! rank's, in rank order. It is a **collective**: every rank must call it the
-//! same number of times, in the same order (the engine's control flow is the
-//! same on every rank because every rank holds the same state). The MPI
-//! transport (feature `mpi`) implements the same trait with nonblocking MPI
-//! operations.
+//! The [`crate::Ranks`] executor communicates in two ways:
+//!
+//! * [`Transport::all_gather`]: every rank contributes a byte string and
+//!   receives every rank's, in rank order. It is a **collective**: every rank
+//!   must call it the same number of times, in the same order (the engine's
+//!   control flow is the same on every rank because every rank holds the same
+//!   state).
+//! * [`Transport::exchange`]: **point to point** between neighbours — byte
+//!   strings to some peers, from some peers, with work run while they travel.
+//!   Only the ranks named take part, each at the same point of its run.
+//!
+//! The MPI transport (feature `mpi`) implements the same trait with
+//! nonblocking MPI operations.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{channel, Receiver, Sender};
@@ -66,6 +72,21 @@ pub trait Transport: Send + Sync {
     /// gone: the run cannot go on.
     fn all_gather(&self, mine: Vec<u8>) -> Result<Vec<Vec<u8>>, RankFailure>;
 
+    /// **Point to point.** Starts sending `sends[k].1` to rank `sends[k].0`
+    /// and receiving `recvs[k].1` bytes from rank `recvs[k].0`, runs
+    /// `overlap` while they travel, then completes them; returns the received
+    /// byte strings in `recvs` order. Every peer named must make the matching
+    /// call (what `i` sends to `j` is what `j` receives from `i`, the same
+    /// length) at the same point of its run; messages between two ranks
+    /// arrive in the order they were sent. An error means a peer is gone or
+    /// broke that contract.
+    fn exchange(
+        &self,
+        sends: Vec<(usize, Vec<u8>)>,
+        recvs: &[(usize, usize)],
+        overlap: &mut dyn FnMut(),
+    ) -> Result<Vec<Vec<u8>>, RankFailure>;
+
     /// Messages and bytes this rank sent so far.
     fn traffic(&self) -> Traffic;
 }
@@ -83,6 +104,15 @@ impl<T: Transport + ?Sized> Transport for &T {
 
     fn all_gather(&self, mine: Vec<u8>) -> Result<Vec<Vec<u8>>, RankFailure> {
         (**self).all_gather(mine)
+    }
+
+    fn exchange(
+        &self,
+        sends: Vec<(usize, Vec<u8>)>,
+        recvs: &[(usize, usize)],
+        overlap: &mut dyn FnMut(),
+    ) -> Result<Vec<Vec<u8>>, RankFailure> {
+        (**self).exchange(sends, recvs, overlap)
     }
 
     fn traffic(&self) -> Traffic {
@@ -140,6 +170,37 @@ impl ChannelTransport {
     }
 }
 
+impl ChannelTransport {
+    fn gone(&self, j: usize) -> RankFailure {
+        RankFailure {
+            rank: self.rank,
+            what: format!("rank {j} is gone (its channel closed)"),
+        }
+    }
+
+    /// Sends `bytes` to rank `j` (not this rank).
+    fn send(&self, j: usize, bytes: Vec<u8>) -> Result<(), RankFailure> {
+        let to = self.to.get(j).and_then(Option::as_ref).ok_or_else(|| RankFailure {
+            rank: self.rank,
+            what: format!("no channel to rank {j}"),
+        })?;
+        let len = bytes.len() as u64;
+        to.send(bytes).map_err(|_| self.gone(j))?;
+        self.sent.add(1, len);
+        Ok(())
+    }
+
+    /// The next message from rank `j` (not this rank), waiting for it.
+    fn receive(&self, j: usize) -> Result<Vec<u8>, RankFailure> {
+        let from = self.from.get(j).and_then(Option::as_ref).ok_or_else(|| RankFailure {
+            rank: self.rank,
+            what: format!("no channel from rank {j}"),
+        })?;
+        let inbox = from.lock().map_err(|_| self.gone(j))?;
+        inbox.recv().map_err(|_| self.gone(j))
+    }
+}
+
 impl Transport for ChannelTransport {
     fn rank(&self) -> usize {
         self.rank
@@ -150,32 +211,48 @@ impl Transport for ChannelTransport {
     }
 
     fn all_gather(&self, mine: Vec<u8>) -> Result<Vec<Vec<u8>>, RankFailure> {
-        let gone = |j: usize| RankFailure {
-            rank: self.rank,
-            what: format!("rank {j} is gone (its channel closed)"),
-        };
-        for (j, to) in self.to.iter().enumerate() {
-            if let Some(to) = to {
-                to.send(mine.clone()).map_err(|_| gone(j))?;
-                self.sent.add(1, mine.len() as u64);
+        for j in 0..self.size() {
+            if j != self.rank {
+                self.send(j, mine.clone())?;
             }
         }
-        let mut all = Vec::with_capacity(self.to.len());
-        for (j, from) in self.from.iter().enumerate() {
-            match from {
-                None => all.push(Vec::new()),
-                Some(from) => {
-                    let received = from
-                        .lock()
-                        .map_err(|_| gone(j))?
-                        .recv()
-                        .map_err(|_| gone(j))?;
-                    all.push(received);
-                }
-            }
+        let mut all = Vec::with_capacity(self.size());
+        for j in 0..self.size() {
+            all.push(if j == self.rank {
+                Vec::new()
+            } else {
+                self.receive(j)?
+            });
         }
         all[self.rank] = mine;
         Ok(all)
+    }
+
+    fn exchange(
+        &self,
+        sends: Vec<(usize, Vec<u8>)>,
+        recvs: &[(usize, usize)],
+        overlap: &mut dyn FnMut(),
+    ) -> Result<Vec<Vec<u8>>, RankFailure> {
+        // Channels buffer: the sends complete at once, the work runs, then
+        // the receives wait for what the peers sent.
+        for (j, bytes) in sends {
+            self.send(j, bytes)?;
+        }
+        overlap();
+        recvs
+            .iter()
+            .map(|&(j, len)| {
+                let bytes = self.receive(j)?;
+                if bytes.len() != len {
+                    return Err(RankFailure {
+                        rank: self.rank,
+                        what: format!("rank {j} sent {} bytes, {len} expected", bytes.len()),
+                    });
+                }
+                Ok(bytes)
+            })
+            .collect()
     }
 
     fn traffic(&self) -> Traffic {
@@ -219,6 +296,61 @@ mod tests {
         let last = transports.pop().unwrap();
         drop(last);
         let err = transports[0].all_gather(vec![1]).unwrap_err();
+        assert!(err.to_string().contains("rank 1 is gone"), "{err}");
+    }
+
+    #[test]
+    fn exchanges_reach_their_peers_in_order_between_collectives() {
+        // A ring: rank r sends round-dependent bytes to r + 1 and receives
+        // from r - 1, with an all-gather between the exchanges; the overlap
+        // runs once per exchange.
+        let transports = ChannelTransport::connected(3);
+        let results: Vec<_> = std::thread::scope(|s| {
+            let handles: Vec<_> = transports
+                .iter()
+                .map(|t| {
+                    s.spawn(move || {
+                        let (r, n) = (t.rank(), t.size());
+                        let (next, prev) = ((r + 1) % n, (r + n - 1) % n);
+                        let mut overlaps = 0;
+                        let mut got = Vec::new();
+                        for round in 0..4usize {
+                            let mine = vec![(10 * r + round) as u8; r + round];
+                            let len = prev + round;
+                            let recv = t
+                                .exchange(vec![(next, mine)], &[(prev, len)], &mut || overlaps += 1)
+                                .unwrap();
+                            got.push(recv[0].clone());
+                            t.all_gather(vec![r as u8]).unwrap();
+                        }
+                        (prev, overlaps, got)
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        for (prev, overlaps, got) in results {
+            assert_eq!(overlaps, 4);
+            for (round, bytes) in got.iter().enumerate() {
+                assert_eq!(bytes, &vec![(10 * prev + round) as u8; prev + round]);
+            }
+        }
+        // a wrong length is an error, not a silent misread
+        let transports = ChannelTransport::connected(2);
+        std::thread::scope(|s| {
+            let t1 = &transports[1];
+            s.spawn(move || t1.exchange(vec![(0, vec![1, 2, 3])], &[], &mut || {}).unwrap());
+            let err = transports[0]
+                .exchange(vec![], &[(1, 2)], &mut || {})
+                .unwrap_err();
+            assert!(err.to_string().contains("3 bytes, 2 expected"), "{err}");
+        });
+        let mut transports = ChannelTransport::connected(2);
+        let last = transports.pop().unwrap();
+        drop(last);
+        let err = transports[0]
+            .exchange(vec![], &[(1, 4)], &mut || {})
+            .unwrap_err();
         assert!(err.to_string().contains("rank 1 is gone"), "{err}");
     }
 }
