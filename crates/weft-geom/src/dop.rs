@@ -99,7 +99,7 @@ pub(crate) fn next_up(x: f64) -> f64 {
 /// [`Dop26::merge`] / [`Dop26::inflate`]): every interval contains the exact
 /// projection of every added point onto the exact unit direction, widened by the
 /// total inflation.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Dop26 {
     /// lower bound per direction.
     pub lo: [f64; 13],

@@ -263,7 +263,9 @@ fn exchange_over_mpi_on_three_ranks() {
             );
         }
         // A collective between exchanges must not be confused with them.
-        let all = transport.all_gather(vec![round as u8; rank]).expect("all_gather");
+        let all = transport
+            .all_gather(vec![round as u8; rank])
+            .expect("all_gather");
         assert_eq!(all[(rank + 1) % size], vec![round as u8; (rank + 1) % size]);
     }
     let exchanged = transport.traffic().bytes - (ROUNDS * (size - 1) * rank) as u64;

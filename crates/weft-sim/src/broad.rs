@@ -31,8 +31,9 @@
 //! # On an executor
 //!
 //! [`BroadPhase::candidates_on`] computes the vertex and triangle DOPs in fixed
-//! runs of [`RUN`] elements (each element is a function of its inputs alone)
-//! and refits the groups' trees one group per task. The traversals are split
+//! runs of [`RUN`] elements (each element is a function of its inputs alone;
+//! the vertex DOPs, which read every breakpoint, are spread over the ranks
+//! too) and refits the groups' trees one group per task. The traversals are split
 //! into node-pair tasks ([`Bvh::self_overlap_tasks_into`],
 //! [`Bvh::cross_overlap_tasks_into`]), each group (pair) getting a share of
 //! [`MIN_TASKS`] by its size; each task generates the stencils of its triangle
@@ -82,15 +83,16 @@ pub struct BroadPhase {
     labels: Vec<u32>,
     /// the groups' trees, built on the first pass over a mesh.
     groups: Vec<Group>,
+    /// per vertex: the DOP of its breakpoints.
+    raw_dops: Vec<Dop26>,
     /// per vertex: the DOP of its breakpoints, and that DOP inflated.
     vertex_dops: Vec<[Dop26; 2]>,
     tri_dops: Vec<Dop26>,
     /// chunk bounds of the current parallel step.
     bounds: Vec<usize>,
-    /// traversal tasks.
+    /// traversal tasks, and the rank each runs on.
     tasks: Vec<Task>,
-    /// one output buffer per traversal task (kept across calls).
-    outs: Vec<TaskOut>,
+    owners: Vec<u32>,
     /// Triangle pairs found by the last pass.
     pub last_pairs: usize,
     /// Overlapping group pairs (window hulls) of the last pass.
@@ -155,8 +157,9 @@ impl BroadPhase {
     /// Candidate stencils of the window whose trajectories are `traj`, computed
     /// on `exec`: sorted, deduplicated, the same on every executor.
     ///
-    /// The DOPs and the trees are computed on every rank; the traversal tasks
-    /// are spread over the ranks ([`Executor::chunks_on_ranks`]).
+    /// The vertex DOPs and the traversal tasks are spread over the ranks
+    /// ([`Executor::chunks_on_ranks`]); the triangle DOPs, the trees and the
+    /// voxel grid are computed on every rank.
     ///
     /// # Panics
     /// If the workspace was [`grouped`](BroadPhase::grouped) with a label
@@ -182,24 +185,34 @@ impl BroadPhase {
         let Self {
             labels: _,
             groups,
+            raw_dops,
             vertex_dops,
             tri_dops,
             bounds,
             tasks,
-            outs,
+            owners,
             last_pairs,
             last_group_pairs,
         } = self;
 
         // Vertex DOPs: every breakpoint of the vertex in the window.
         vertex_dops.resize(traj.len(), [Dop26::empty(); 2]);
+        // This is the one step that reads every breakpoint, so over ranks
+        // each rank computes a share of the runs and all ranks get all of
+        // them with their exact bits; the inflated copies are made locally.
         runs(traj.len(), bounds);
-        exec.for_each_chunk(vertex_dops, bounds, &|k, chunk: &mut [[Dop26; 2]]| {
+        raw_dops.resize(traj.len(), Dop26::empty());
+        exec.chunks_on_ranks(raw_dops, bounds, &|k, chunk: &mut [Dop26]| {
             for (i, d) in (k * RUN..).zip(chunk.iter_mut()) {
-                let mut raw = Dop26::empty();
+                *d = Dop26::empty();
                 for &p in traj.of(i).points {
-                    raw.add_point(p);
+                    d.add_point(p);
                 }
+            }
+        })?;
+        let raw: &[Dop26] = raw_dops;
+        exec.for_each_chunk(vertex_dops, bounds, &|k, chunk: &mut [[Dop26; 2]]| {
+            for (&raw, d) in raw[k * RUN..].iter().zip(chunk.iter_mut()) {
                 let mut inflated = raw;
                 inflated.inflate(inflate);
                 *d = [raw, inflated];
@@ -245,11 +258,6 @@ impl BroadPhase {
         make_tasks(groups, last_group_pairs, triangles.len(), tasks);
 
         let n = tasks.len();
-        if outs.len() < n {
-            outs.resize_with(n, TaskOut::default);
-        }
-        bounds.clear();
-        bounds.extend(0..=n);
         let (groups, tasks): (&[Group], &[Task]) = (groups, tasks);
         let filter = Filter {
             triangles,
@@ -259,10 +267,13 @@ impl BroadPhase {
             inflate,
             exact_unions: !vd.iter().any(|d| d[0].is_empty()),
         };
-        exec.chunks_on_ranks(&mut outs[..n], bounds, &|k, chunk: &mut [TaskOut]| {
-            let out = &mut chunk[0];
-            out.keys.clear();
-            out.pairs = 0;
+        // Task costs differ by orders of magnitude (a partition's own pairs
+        // against a pair of partitions that barely touch) and neighbouring
+        // tasks are alike, so over ranks they are dealt round robin.
+        owners.clear();
+        owners.extend((0..n).map(|k| (k % exec.ranks()) as u32));
+        let outs = exec.map_on_ranks(n, owners, &|k| {
+            let mut out = TaskOut::default();
             let Task { a, b, nodes } = tasks[k];
             let (ga, gb) = (&groups[a as usize], &groups[b as usize]);
             let mut found = |i: u32, j: u32| {
@@ -277,11 +288,12 @@ impl BroadPhase {
             }
             out.keys.sort_unstable();
             out.keys.dedup();
+            out
         })?;
 
-        *last_pairs = outs[..n].iter().map(|o| o.pairs).sum();
-        let mut keys = Vec::with_capacity(outs[..n].iter().map(|o| o.keys.len()).sum());
-        for o in &outs[..n] {
+        *last_pairs = outs.iter().map(|o| o.pairs).sum();
+        let mut keys = Vec::with_capacity(outs.iter().map(|o| o.keys.len()).sum());
+        for o in &outs {
             keys.extend_from_slice(&o.keys);
         }
         // Concatenated sorted runs: the stable sort merges them.

@@ -709,10 +709,13 @@ impl<E: Executor> Engine<E> {
             let share = self.share.as_ref();
             let (exec, bounds, xt) = (&self.exec, &ws.bounds, &ws.xt);
             match share {
-                None => w.internal.evaluate(exec, bounds, xt, &w.v, &mut ws.out, None),
+                None => w
+                    .internal
+                    .evaluate(exec, bounds, xt, &w.v, &mut ws.out, None),
                 Some(share) => {
                     let boundary = Some(&share.boundary_partition[..]);
-                    w.internal.evaluate(exec, bounds, xt, &w.v, &mut ws.out, boundary);
+                    w.internal
+                        .evaluate(exec, bounds, xt, &w.v, &mut ws.out, boundary);
                     share.exchange_slots(exec, &mut ws.out, &mut |out| {
                         let interior = Some(&share.interior_partition[..]);
                         w.internal.evaluate(exec, bounds, xt, &w.v, out, interior);

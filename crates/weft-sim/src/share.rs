@@ -154,7 +154,10 @@ impl RankShare {
         v_new: &mut [DVec3],
     ) -> Result<(), CommError> {
         let lists = &self.owned;
-        let mine: Vec<DVec3> = lists[self.rank].iter().map(|&k| v_new[k as usize]).collect();
+        let mine: Vec<DVec3> = lists[self.rank]
+            .iter()
+            .map(|&k| v_new[k as usize])
+            .collect();
         let all = exec.all_gather_vectors(&mine)?;
         if all.len() != self.ranks {
             return Err(CommError(format!(

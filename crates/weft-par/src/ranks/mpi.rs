@@ -265,13 +265,17 @@ impl Transport for MpiTransport {
         };
         for &(j, len) in recvs {
             peer(j)?;
-            Count::try_from(len)
-                .map_err(|_| self.failure(format!("{len} bytes from rank {j}: too large for MPI")))?;
+            Count::try_from(len).map_err(|_| {
+                self.failure(format!("{len} bytes from rank {j}: too large for MPI"))
+            })?;
         }
         for (j, bytes) in &sends {
             peer(*j)?;
             Count::try_from(bytes.len()).map_err(|_| {
-                self.failure(format!("{} bytes to rank {j}: too large for MPI", bytes.len()))
+                self.failure(format!(
+                    "{} bytes to rank {j}: too large for MPI",
+                    bytes.len()
+                ))
             })?;
         }
         let mut received: Vec<Vec<u8>> = recvs.iter().map(|&(_, len)| vec![0u8; len]).collect();
@@ -279,11 +283,11 @@ impl Transport for MpiTransport {
             let mut sent = Vec::with_capacity(sends.len());
             for (j, bytes) in &sends {
                 let world = self.mpi_call().world();
-                sent.push(world.process_at_rank(*j as mpi::Rank).immediate_send_with_tag(
-                    scope,
-                    &bytes[..],
-                    EXCHANGE_TAG,
-                ));
+                sent.push(
+                    world
+                        .process_at_rank(*j as mpi::Rank)
+                        .immediate_send_with_tag(scope, &bytes[..], EXCHANGE_TAG),
+                );
             }
             let mut arriving = Vec::with_capacity(recvs.len());
             for (&(j, _), buffer) in recvs.iter().zip(received.iter_mut()) {

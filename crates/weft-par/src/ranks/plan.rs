@@ -93,7 +93,11 @@ pub fn plan(world: &World, ranks: usize) -> Vec<RankPlan> {
                 continue;
             }
             plan.owned.push(i);
-            if internal.incidence(i as usize).iter().any(|s| remote.contains(s)) {
+            if internal
+                .incidence(i as usize)
+                .iter()
+                .any(|s| remote.contains(s))
+            {
                 plan.boundary_vertices.push(i);
             } else {
                 plan.interior_vertices.push(i);

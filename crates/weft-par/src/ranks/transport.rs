@@ -180,10 +180,14 @@ impl ChannelTransport {
 
     /// Sends `bytes` to rank `j` (not this rank).
     fn send(&self, j: usize, bytes: Vec<u8>) -> Result<(), RankFailure> {
-        let to = self.to.get(j).and_then(Option::as_ref).ok_or_else(|| RankFailure {
-            rank: self.rank,
-            what: format!("no channel to rank {j}"),
-        })?;
+        let to = self
+            .to
+            .get(j)
+            .and_then(Option::as_ref)
+            .ok_or_else(|| RankFailure {
+                rank: self.rank,
+                what: format!("no channel to rank {j}"),
+            })?;
         let len = bytes.len() as u64;
         to.send(bytes).map_err(|_| self.gone(j))?;
         self.sent.add(1, len);
@@ -192,10 +196,14 @@ impl ChannelTransport {
 
     /// The next message from rank `j` (not this rank), waiting for it.
     fn receive(&self, j: usize) -> Result<Vec<u8>, RankFailure> {
-        let from = self.from.get(j).and_then(Option::as_ref).ok_or_else(|| RankFailure {
-            rank: self.rank,
-            what: format!("no channel from rank {j}"),
-        })?;
+        let from = self
+            .from
+            .get(j)
+            .and_then(Option::as_ref)
+            .ok_or_else(|| RankFailure {
+                rank: self.rank,
+                what: format!("no channel from rank {j}"),
+            })?;
         let inbox = from.lock().map_err(|_| self.gone(j))?;
         inbox.recv().map_err(|_| self.gone(j))
     }
@@ -339,7 +347,10 @@ mod tests {
         let transports = ChannelTransport::connected(2);
         std::thread::scope(|s| {
             let t1 = &transports[1];
-            s.spawn(move || t1.exchange(vec![(0, vec![1, 2, 3])], &[], &mut || {}).unwrap());
+            s.spawn(move || {
+                t1.exchange(vec![(0, vec![1, 2, 3])], &[], &mut || {})
+                    .unwrap()
+            });
             let err = transports[0]
                 .exchange(vec![], &[(1, 2)], &mut || {})
                 .unwrap_err();
