@@ -3,10 +3,10 @@
 //!
 //! | module | what |
 //! |---|---|
-//! | [`mod@plan`] | partition placement, owned / ghost vertices, boundary and interior partitions, who sends what |
-//! | [`mod@executor`] | [`Ranks`]: one rank's executor — its share of every stage, all-gathered |
-//! | [`mod@transport`] | the [`Transport`] collective and its in-process channels |
-//! | `mpi` (feature `mpi`) | `MpiTransport`: the [`Transport`] over MPI, nonblocking collectives polled with a back-off |
+//! | [`mod@plan`] | partition placement, owned / ghost vertices, boundary and interior partitions, who sends what (the slot lists are the engine's `RankShare`) |
+//! | [`mod@executor`] | [`Ranks`]: one rank's executor — its share of every stage, all-gathered; boundary slots point to point |
+//! | [`mod@transport`] | the [`Transport`]: an all-gather collective and a point-to-point exchange overlapped with work; its in-process channels |
+//! | `mpi` (feature `mpi`) | `MpiTransport`: the [`Transport`] over MPI, nonblocking collectives and `Isend`/`Irecv` polled with a back-off |
 //! | [`mod@internal`] | internal-force ticks over ranks: ghost exchange overlapped with interior work, slot exchange, ordered folds |
 
 pub mod executor;
