@@ -121,3 +121,81 @@ fn placement_balances_slots() {
         assert!(worst <= 1.15 * mean, "R = {ranks}: {load:?}");
     }
 }
+
+/// The engine's share of the internal ticks over ranks (`RankShare`): what
+/// one rank sends another is what that rank expects from it; only boundary
+/// partitions send (interior ones are evaluated while the messages travel,
+/// so a slot they computed could not be sent yet); and every slot a rank's
+/// vertices fold is computed there or received.
+#[test]
+fn rank_shares_mirror_and_cover_every_fold() {
+    use weft_sim::share::RankShare;
+    for partitions in [4, 16, 64] {
+        let w = world(partitions);
+        let mut slot_partition = vec![0usize; w.internal.num_slots()];
+        for (p, part) in w.internal.partitions.iter().enumerate() {
+            slot_partition[part.slots.clone()].fill(p);
+        }
+        for ranks in 1..=4 {
+            let shares: Vec<RankShare> = (0..ranks).map(|r| RankShare::new(&w, r, ranks)).collect();
+            let mut traffic = 0;
+            for (r, share) in shares.iter().enumerate() {
+                let ctx = format!("P = {partitions}, R = {ranks}, rank {r}");
+                for (peer, slots) in &share.send_slots {
+                    assert_ne!(*peer, r, "{ctx}: sends to itself");
+                    let theirs = shares[*peer].recv_slots.iter().find(|(from, _)| *from == r);
+                    assert_eq!(theirs.map(|(_, s)| s), Some(slots), "{ctx}: to {peer}");
+                    for &s in slots {
+                        let p = slot_partition[s as usize];
+                        assert!(
+                            share.boundary_partition[p],
+                            "{ctx}: slot {s} of partition {p}"
+                        );
+                    }
+                    traffic += slots.len();
+                }
+                for (peer, _) in &share.recv_slots {
+                    assert!(
+                        shares[*peer].send_slots.iter().any(|(to, _)| *to == r),
+                        "{ctx}: expects from {peer}, which sends nothing"
+                    );
+                }
+                let received: std::collections::BTreeSet<u32> = share
+                    .recv_slots
+                    .iter()
+                    .flat_map(|(_, s)| s.iter().copied())
+                    .collect();
+                for i in 0..w.num_vertices() {
+                    if !share.own_vertex[i] {
+                        continue;
+                    }
+                    for &s in w.internal.incidence(i) {
+                        let p = slot_partition[s as usize];
+                        let here = share.boundary_partition[p] || share.interior_partition[p];
+                        assert!(
+                            here || received.contains(&s),
+                            "{ctx}: vertex {i} folds slot {s} of partition {p}, neither computed nor received"
+                        );
+                    }
+                }
+                // each partition is evaluated on exactly one rank
+                for p in 0..partitions {
+                    let evaluated = shares
+                        .iter()
+                        .filter(|s| s.boundary_partition[p] || s.interior_partition[p])
+                        .count();
+                    assert_eq!(evaluated, 1, "{ctx}: partition {p}");
+                }
+            }
+            assert_eq!(traffic == 0, ranks == 1, "P = {partitions}, R = {ranks}");
+            if partitions >= 64 {
+                // there is interior work to overlap the messages with (with
+                // 4 partitions per rank of this small cloth, all may border)
+                assert!(
+                    shares.iter().all(|s| s.interior_partition.iter().any(|&i| i)),
+                    "P = {partitions}, R = {ranks}: a rank has no interior partition"
+                );
+            }
+        }
+    }
+}
