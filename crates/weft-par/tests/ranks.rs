@@ -192,7 +192,9 @@ fn rank_shares_mirror_and_cover_every_fold() {
                 // there is interior work to overlap the messages with (with
                 // 4 partitions per rank of this small cloth, all may border)
                 assert!(
-                    shares.iter().all(|s| s.interior_partition.iter().any(|&i| i)),
+                    shares
+                        .iter()
+                        .all(|s| s.interior_partition.iter().any(|&i| i)),
                     "P = {partitions}, R = {ranks}: a rank has no interior partition"
                 );
             }

@@ -272,24 +272,28 @@ impl Transport for ChannelTransport {
 mod tests {
     use super::*;
 
+    /// `body(transport)` on one thread per rank of `transports`; the results
+    /// in rank order.
+    fn on_each_rank<R: Send>(
+        transports: &[ChannelTransport],
+        body: impl Fn(&ChannelTransport) -> R + Sync,
+    ) -> Vec<R> {
+        std::thread::scope(|s| {
+            let handles: Vec<_> = transports.iter().map(|t| s.spawn(|| body(t))).collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        })
+    }
+
     #[test]
     fn every_rank_gets_every_part_in_rank_order_and_a_lost_rank_is_an_error() {
         let transports = ChannelTransport::connected(3);
-        let results: Vec<_> = std::thread::scope(|s| {
-            let handles: Vec<_> = transports
-                .iter()
-                .map(|t| {
-                    s.spawn(move || {
-                        (0..5)
-                            .map(|round| {
-                                let mine = vec![t.rank() as u8; round + t.rank()];
-                                t.all_gather(mine).unwrap()
-                            })
-                            .collect::<Vec<_>>()
-                    })
+        let results = on_each_rank(&transports, |t| {
+            (0..5)
+                .map(|round| {
+                    let mine = vec![t.rank() as u8; round + t.rank()];
+                    t.all_gather(mine).unwrap()
                 })
-                .collect();
-            handles.into_iter().map(|h| h.join().unwrap()).collect()
+                .collect::<Vec<_>>()
         });
         for rounds in &results {
             for (round, all) in rounds.iter().enumerate() {
@@ -313,29 +317,21 @@ mod tests {
         // from r - 1, with an all-gather between the exchanges; the overlap
         // runs once per exchange.
         let transports = ChannelTransport::connected(3);
-        let results: Vec<_> = std::thread::scope(|s| {
-            let handles: Vec<_> = transports
-                .iter()
-                .map(|t| {
-                    s.spawn(move || {
-                        let (r, n) = (t.rank(), t.size());
-                        let (next, prev) = ((r + 1) % n, (r + n - 1) % n);
-                        let mut overlaps = 0;
-                        let mut got = Vec::new();
-                        for round in 0..4usize {
-                            let mine = vec![(10 * r + round) as u8; r + round];
-                            let len = prev + round;
-                            let recv = t
-                                .exchange(vec![(next, mine)], &[(prev, len)], &mut || overlaps += 1)
-                                .unwrap();
-                            got.push(recv[0].clone());
-                            t.all_gather(vec![r as u8]).unwrap();
-                        }
-                        (prev, overlaps, got)
-                    })
-                })
-                .collect();
-            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        let results = on_each_rank(&transports, |t| {
+            let (r, n) = (t.rank(), t.size());
+            let (next, prev) = ((r + 1) % n, (r + n - 1) % n);
+            let mut overlaps = 0;
+            let mut got = Vec::new();
+            for round in 0..4usize {
+                let mine = vec![(10 * r + round) as u8; r + round];
+                let len = prev + round;
+                let recv = t
+                    .exchange(vec![(next, mine)], &[(prev, len)], &mut || overlaps += 1)
+                    .unwrap();
+                got.push(recv[0].clone());
+                t.all_gather(vec![r as u8]).unwrap();
+            }
+            (prev, overlaps, got)
         });
         for (prev, overlaps, got) in results {
             assert_eq!(overlaps, 4);
