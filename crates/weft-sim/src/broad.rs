@@ -33,10 +33,12 @@
 //! [`BroadPhase::candidates_on`] computes the vertex and triangle DOPs in fixed
 //! runs of [`RUN`] elements (each element is a function of its inputs alone;
 //! the vertex DOPs, which read every breakpoint, are spread over the ranks
-//! too) and refits the groups' trees one group per task. The traversals are split
-//! into node-pair tasks ([`Bvh::self_overlap_tasks_into`],
+//! too) and refits the groups' trees one group per task. The traversals are
+//! split into node-pair tasks ([`Bvh::self_overlap_tasks_into`],
 //! [`Bvh::cross_overlap_tasks_into`]), each group (pair) getting a share of
-//! [`MIN_TASKS`] by its size; each task generates the stencils of its triangle
+//! [`MIN_TASKS`] by its size, dealt to the ranks round robin (neighbouring
+//! tasks cost alike, so contiguous blocks would be unbalanced); each task
+//! generates the stencils of its triangle
 //! pairs, applies the stencil-level filter to each as it is generated, and
 //! sorts and deduplicates the survivors. The tasks' keys are then
 //! concatenated, sorted and deduplicated. The filter is a pure function of the
@@ -157,9 +159,10 @@ impl BroadPhase {
     /// Candidate stencils of the window whose trajectories are `traj`, computed
     /// on `exec`: sorted, deduplicated, the same on every executor.
     ///
-    /// The vertex DOPs and the traversal tasks are spread over the ranks
-    /// ([`Executor::chunks_on_ranks`]); the triangle DOPs, the trees and the
-    /// voxel grid are computed on every rank.
+    /// The vertex DOPs ([`Executor::chunks_on_ranks`]) and the traversal
+    /// tasks ([`Executor::map_on_ranks`], round robin) are spread over the
+    /// ranks; the triangle DOPs, the trees and the voxel grid are computed on
+    /// every rank.
     ///
     /// # Panics
     /// If the workspace was [`grouped`](BroadPhase::grouped) with a label
@@ -195,13 +198,13 @@ impl BroadPhase {
             last_group_pairs,
         } = self;
 
-        // Vertex DOPs: every breakpoint of the vertex in the window.
-        vertex_dops.resize(traj.len(), [Dop26::empty(); 2]);
-        // This is the one step that reads every breakpoint, so over ranks
-        // each rank computes a share of the runs and all ranks get all of
-        // them with their exact bits; the inflated copies are made locally.
+        // Vertex DOPs: every breakpoint of the vertex in the window. This is
+        // the one step that reads every breakpoint, so over ranks each rank
+        // computes a share of the runs and all ranks get all of them with
+        // their exact bits; the inflated copies are made locally.
         runs(traj.len(), bounds);
         raw_dops.resize(traj.len(), Dop26::empty());
+        vertex_dops.resize(traj.len(), [Dop26::empty(); 2]);
         exec.chunks_on_ranks(raw_dops, bounds, &|k, chunk: &mut [Dop26]| {
             for (i, d) in (k * RUN..).zip(chunk.iter_mut()) {
                 *d = Dop26::empty();
