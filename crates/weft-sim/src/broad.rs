@@ -32,8 +32,8 @@
 //!
 //! [`BroadPhase::candidates_on`] computes the vertex and triangle DOPs in fixed
 //! runs of [`RUN`] elements (each element is a function of its inputs alone;
-//! the vertex DOPs, which read every breakpoint, are spread over the ranks
-//! too) and refits the groups' trees one group per task. The traversals are
+//! over ranks each vertex DOP, which reads every breakpoint of the vertex, is
+//! computed by the rank holding them) and refits the groups' trees one group per task. The traversals are
 //! split into node-pair tasks ([`Bvh::self_overlap_tasks_into`],
 //! [`Bvh::cross_overlap_tasks_into`]), each group (pair) getting a share of
 //! [`MIN_TASKS`] by its size, dealt to the ranks round robin (neighbouring
@@ -159,9 +159,9 @@ impl BroadPhase {
     /// Candidate stencils of the window whose trajectories are `traj`, computed
     /// on `exec`: sorted, deduplicated, the same on every executor.
     ///
-    /// The vertex DOPs ([`Executor::chunks_on_ranks`]) and the traversal
-    /// tasks ([`Executor::map_on_ranks`], round robin) are spread over the
-    /// ranks; the triangle DOPs, the trees and the voxel grid are computed on
+    /// The vertex DOPs (each on the rank holding the vertex's breakpoints)
+    /// and the traversal tasks (round robin) are spread over the ranks
+    /// ([`Executor::map_on_ranks`]); the triangle DOPs, the trees and the voxel grid are computed on
     /// every rank.
     ///
     /// # Panics
@@ -198,21 +198,15 @@ impl BroadPhase {
             last_group_pairs,
         } = self;
 
-        // Vertex DOPs: every breakpoint of the vertex in the window. This is
-        // the one step that reads every breakpoint, so over ranks each rank
-        // computes a share of the runs and all ranks get all of them with
-        // their exact bits; the inflated copies are made locally.
-        runs(traj.len(), bounds);
-        raw_dops.resize(traj.len(), Dop26::empty());
-        vertex_dops.resize(traj.len(), [Dop26::empty(); 2]);
-        exec.chunks_on_ranks(raw_dops, bounds, &|k, chunk: &mut [Dop26]| {
-            for (i, d) in (k * RUN..).zip(chunk.iter_mut()) {
-                *d = Dop26::empty();
-                for &p in traj.of(i).points {
-                    d.add_point(p);
-                }
-            }
+        // Vertex DOPs: every breakpoint of the vertex in the window. Over
+        // ranks each vertex's DOP is computed by the rank that holds its
+        // breakpoints (the one step that reads them all), and every rank gets
+        // every DOP with its exact bits; the inflated copies are made locally.
+        *raw_dops = exec.map_on_ranks(traj.len(), traj.holders(), &|i| {
+            Dop26::from_points(traj.of(i).points.iter().copied())
         })?;
+        runs(traj.len(), bounds);
+        vertex_dops.resize(traj.len(), [Dop26::empty(); 2]);
         let raw: &[Dop26] = raw_dops;
         exec.for_each_chunk(vertex_dops, bounds, &|k, chunk: &mut [[Dop26; 2]]| {
             for (&raw, d) in raw[k * RUN..].iter().zip(chunk.iter_mut()) {

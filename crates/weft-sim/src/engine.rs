@@ -265,8 +265,13 @@ impl<E: Executor> Engine<E> {
     /// the floor `eta_inf` or two triangles intersect.
     pub fn new(world: World, exec: E) -> Result<Self, SimError> {
         let n = world.num_vertices();
-        let traj = Trajectories::new(n, world.limits.trajectory_budget_bytes);
+        let mut traj = Trajectories::new(n, world.limits.trajectory_budget_bytes);
         let share = (exec.ranks() > 1).then(|| RankShare::new(&world, exec.rank(), exec.ranks()));
+        if let Some(share) = &share {
+            // A vertex's breakpoints are stored by its owner only; others
+            // fetch what their tasks read.
+            traj.hold_only(share.owner.clone(), share.rank as u32);
+        }
         let mut engine = Self {
             ws: Workspace {
                 xt: vec![DVec3::ZERO; n],
@@ -1045,6 +1050,59 @@ impl<E: Executor> Engine<E> {
         Ok(())
     }
 
+    /// Over ranks: every rank gets, from the ranks that hold them, the
+    /// polylines of the vertices its tasks read (`reads[r]` for rank `r`,
+    /// in any order, repeats allowed) and does not hold itself. Every rank
+    /// works out the same traffic from the same placement, so nothing is
+    /// requested: holders send, readers receive, point to point, exact bits
+    /// (`Trajectories::fetched`). The polylines stay cached for the window.
+    fn fetch_trajectories(&mut self, mut reads: Vec<Vec<u32>>) -> Result<(), CommError> {
+        let me = self.exec.rank();
+        let holders = self.traj.holders();
+        // (holder, reader) → vertices, ascending; only pairs with this rank.
+        let mut travel: std::collections::BTreeMap<(usize, usize), Vec<u32>> = Default::default();
+        for (r, list) in reads.iter_mut().enumerate() {
+            list.sort_unstable();
+            list.dedup();
+            for &v in list.iter() {
+                let h = holders[v as usize] as usize;
+                if h != r && (r == me || h == me) {
+                    travel.entry((h, r)).or_default().push(v);
+                }
+            }
+        }
+        let mut sends: Vec<(usize, Vec<f64>)> = Vec::new();
+        let mut recvs: Vec<(usize, Vec<u32>)> = Vec::new();
+        for ((h, r), vertices) in travel {
+            if r == me {
+                recvs.push((h, vertices));
+            } else {
+                let mut words = Vec::new();
+                for &v in &vertices {
+                    self.traj.words_of(v as usize, &mut words);
+                }
+                sends.push((r, words));
+            }
+        }
+        let lens: Vec<(usize, usize)> = recvs
+            .iter()
+            .map(|(h, vs)| {
+                (
+                    *h,
+                    vs.iter().map(|&v| 4 * self.traj.count(v as usize)).sum(),
+                )
+            })
+            .collect();
+        let received = self.exec.exchange_words(sends, &lens, &mut || {})?;
+        for ((_, vertices), words) in recvs.iter().zip(received) {
+            let mut at = 0;
+            for &v in vertices {
+                at += self.traj.fetched(v as usize, &words[at..]);
+            }
+        }
+        Ok(())
+    }
+
     /// Stencils among `candidates` (sorted) that may come within
     /// `eta_(depth+1)`, in key order.
     ///
@@ -1058,24 +1116,37 @@ impl<E: Executor> Engine<E> {
     /// average load) and every rank gets every answer.
     fn narrow_phase(&mut self, candidates: &[StencilKey]) -> Result<Vec<StencilKey>, CommError> {
         const TASK: f64 = 64.0;
-        let w = &self.world;
-        let traj = &self.traj;
-        let costs = &mut self.narrow_costs;
-        let tasks = CollisionTasks::build(candidates, &w.partitioning, costs, TASK * costs.mean());
+        let costs = &self.narrow_costs;
+        let tasks = CollisionTasks::build(
+            candidates,
+            &self.world.partitioning,
+            costs,
+            TASK * costs.mean(),
+        );
         let order = tasks.by_load();
         let ranks = self.exec.ranks();
         let mut owner = vec![0u32; order.len()];
-        // The partitions' home ranks, placed once for the run (over ranks).
-        let home = self.share.as_ref().map_or(&[][..], |s| &s.home[..]);
         if ranks > 1 {
+            // The partitions' home ranks, placed once for the run.
+            let home = self.share.as_ref().map_or(&[][..], |s| &s.home[..]);
             let by_load: Vec<_> = order.iter().map(|&t| tasks.tasks[t].clone()).collect();
             let (assigned, _) = locality_aware(&by_load, ranks, &|p| home[p as usize] as usize);
+            let mut reads = vec![Vec::new(); ranks];
             for (r, mine) in assigned.iter().enumerate() {
                 for &n in mine {
                     owner[n] = r as u32;
+                    let task = &tasks.tasks[order[n]];
+                    for &c in &tasks.order[task.range.clone()] {
+                        reads[r].extend_from_slice(&candidates[c as usize].v);
+                    }
                 }
             }
+            self.fetch_trajectories(reads)?;
         }
+        let w = &self.world;
+        let traj = &self.traj;
+        let costs = &mut self.narrow_costs;
+        let home = self.share.as_ref().map_or(&[][..], |s| &s.home[..]);
         let answers = self.exec.map_on_ranks(order.len(), &owner, &|n| {
             let task = &tasks.tasks[order[n]];
             let _span = trace::span_with("narrow task", "candidates", task.range.len() as u64);
@@ -1132,15 +1203,27 @@ impl<E: Executor> Engine<E> {
     /// active set stays a prefix `1..=depth` — and the counter restarts.
     fn commit(&mut self, candidates: &[StencilKey]) -> Result<u64, CommError> {
         const TASK: usize = 64;
-        let w = &self.world;
-        let traj = &self.traj;
-        let hysteresis = w.contact.retire_after_windows;
-        let entries: Vec<(StencilKey, LayerState)> =
-            w.layers.stencils.iter().map(|(k, s)| (*k, *s)).collect();
+        let entries: Vec<(StencilKey, LayerState)> = (self.world.layers.stencils.iter())
+            .map(|(k, s)| (*k, *s))
+            .collect();
         // Each stencil's new state depends on its own certificates only, so
         // the stencils are decided on the executor and applied in key order.
         let tasks = entries.len().div_ceil(TASK);
-        let owner = place_in_blocks(tasks, self.exec.ranks());
+        let ranks = self.exec.ranks();
+        let owner = place_in_blocks(tasks, ranks);
+        if ranks > 1 {
+            // Only the stencils among the candidates are certified again.
+            let mut reads = vec![Vec::new(); ranks];
+            for (n, (key, _)) in entries.iter().enumerate() {
+                if candidates.binary_search(key).is_ok() {
+                    reads[owner[n / TASK] as usize].extend_from_slice(&key.v);
+                }
+            }
+            self.fetch_trajectories(reads)?;
+        }
+        let w = &self.world;
+        let traj = &self.traj;
+        let hysteresis = w.contact.retire_after_windows;
         let decided = self.exec.map_on_ranks(tasks, &owner, &|t| {
             let _span = trace::span_with("commit task", "first", (t * TASK) as u64);
             let mut ccd = CcdStats::default();
@@ -1148,10 +1231,14 @@ impl<E: Executor> Engine<E> {
             let states: Vec<(LayerState, u64)> = run
                 .iter()
                 .map(|&(key, mut s)| {
+                    // Only a candidate's polylines are read (over ranks,
+                    // only those were fetched).
                     let near = candidates.binary_search(&key).is_ok();
-                    let tr = key.v.map(|i| traj.of(i as usize));
-                    let mut certified_outside =
-                        |eta: f64| -> bool { !near || !proximity(key.kind, &tr, eta, &mut ccd) };
+                    let tr = near.then(|| key.v.map(|i| traj.of(i as usize)));
+                    let mut certified_outside = |eta: f64| -> bool {
+                        tr.as_ref()
+                            .is_none_or(|tr| !proximity(key.kind, tr, eta, &mut ccd))
+                    };
                     if !certified_outside(w.schedule.eta(s.depth)) {
                         s.calm_windows = 0;
                         return (s, 0);

@@ -101,22 +101,22 @@ pub trait Executor: Sync {
     }
 
     /// **Point to point between ranks, overlapped with work.** Sends
-    /// `sends[k].1` to rank `sends[k].0`, receives `recvs[k].1` vectors from
+    /// `sends[k].1` to rank `sends[k].0`, receives `recvs[k].1` words from
     /// rank `recvs[k].0`, and runs `overlap` while the messages travel
     /// (Algorithm 1: the interior partitions are computed while the boundary
-    /// contributions are in flight). Returns the received vectors in `recvs`
+    /// contributions are in flight). Returns the received words in `recvs`
     /// order, with their exact bits.
     ///
     /// Not a collective: only the ranks named take part, but each must make
     /// the matching call at the same point of its run (rank `j` receives
     /// from `i` exactly what `i` sends to `j`, with the same length). On a
     /// single memory there is no peer: `overlap` runs and nothing is sent.
-    fn exchange_vectors(
+    fn exchange_words(
         &self,
-        sends: Vec<(usize, Vec<glam::DVec3>)>,
+        sends: Vec<(usize, Vec<f64>)>,
         recvs: &[(usize, usize)],
         overlap: &mut dyn FnMut(),
-    ) -> Result<Vec<Vec<glam::DVec3>>, CommError> {
+    ) -> Result<Vec<Vec<f64>>, CommError> {
         if !sends.is_empty() || !recvs.is_empty() {
             return Err(CommError(format!(
                 "{}: no peer rank to exchange with on one memory",

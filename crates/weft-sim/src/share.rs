@@ -41,6 +41,8 @@ pub struct RankShare {
     /// Per partition: evaluated on this rank, all its slots folded here
     /// (evaluated while the boundary slots travel).
     pub interior_partition: Vec<bool>,
+    /// Per vertex: the rank that folds and advances it (its owner).
+    pub owner: Vec<u32>,
     /// Per vertex: folded and advanced on this rank.
     pub own_vertex: Vec<bool>,
     /// Per peer rank (ascending): the slots this rank computes that the
@@ -111,6 +113,7 @@ impl RankShare {
             interior_partition,
             home,
             own_vertex: owner.iter().map(|&r| r as usize == rank).collect(),
+            owner,
             send_slots,
             recv_slots,
             owned,
@@ -127,20 +130,23 @@ impl RankShare {
         out: &mut [DVec3],
         interior: &mut dyn FnMut(&mut [DVec3]),
     ) -> Result<(), CommError> {
-        let sends: Vec<(usize, Vec<DVec3>)> = self
+        let sends: Vec<(usize, Vec<f64>)> = self
             .send_slots
             .iter()
-            .map(|(peer, slots)| (*peer, slots.iter().map(|&k| out[k as usize]).collect()))
+            .map(|(peer, slots)| {
+                let words = slots.iter().flat_map(|&k| out[k as usize].to_array());
+                (*peer, words.collect())
+            })
             .collect();
         let recvs: Vec<(usize, usize)> = self
             .recv_slots
             .iter()
-            .map(|(peer, slots)| (*peer, slots.len()))
+            .map(|(peer, slots)| (*peer, 3 * slots.len()))
             .collect();
-        let received = exec.exchange_vectors(sends, &recvs, &mut || interior(out))?;
-        for ((_, slots), values) in self.recv_slots.iter().zip(received) {
-            for (&k, value) in slots.iter().zip(values) {
-                out[k as usize] = value;
+        let received = exec.exchange_words(sends, &recvs, &mut || interior(out))?;
+        for ((_, slots), words) in self.recv_slots.iter().zip(received) {
+            for (&k, c) in slots.iter().zip(words.chunks_exact(3)) {
+                out[k as usize] = DVec3::new(c[0], c[1], c[2]);
             }
         }
         Ok(())

@@ -5,6 +5,18 @@
 //! ticks relative to the window start — integers below 2^53, so exact — and the
 //! positions the engine actually wrote). Storage is reused across windows and
 //! bounded by a memory budget.
+//!
+//! # Over ranks
+//!
+//! Each vertex has a *holder* rank that stores its breakpoints
+//! ([`Trajectories::hold_only`]; on one memory every vertex is held). Every
+//! rank still knows, for every vertex, how many breakpoints it has and when
+//! its last one was (velocities are the same on every rank, so every rank
+//! sees every breakpoint happen): the budget, the statistics and the lengths
+//! of what travels are the same everywhere. A rank that reads a vertex it
+//! does not hold (a narrow-phase or retirement task with a vertex of another
+//! rank's partition) first receives its polyline from the holder into a
+//! per-window cache ([`Trajectories::fetched`]), exactly, bit for bit.
 
 use glam::DVec3;
 use weft_geom::ccd::Trajectory;
@@ -20,29 +32,55 @@ pub struct Trajectories {
     start: Tick,
     times: Vec<Vec<f64>>,
     points: Vec<Vec<DVec3>>,
+    /// per vertex: the time of its last breakpoint (relative ticks) and how
+    /// many it has — kept for every vertex, held here or not.
+    last: Vec<f64>,
+    count: Vec<u32>,
+    /// per vertex: the rank that stores its breakpoints, and this rank.
+    holder: Vec<u32>,
+    me: u32,
+    /// polylines of vertices held elsewhere, received this window.
+    cache: std::collections::HashMap<u32, (Vec<f64>, Vec<DVec3>)>,
     total: usize,
     budget: usize,
 }
 
-/// Appends a breakpoint at relative time `rel`; returns whether one was added
-/// (the same instant again — the window end right after a kick — only keeps
-/// the newest position, which equals the previous one bit for bit).
+/// Notes a breakpoint at relative time `rel` of a vertex whose last one was
+/// at `last` (storing it when `store`); returns whether one was added (the
+/// same instant again — the window end right after a kick — only keeps the
+/// newest position, which equals the previous one bit for bit).
 #[inline]
-fn push_breakpoint(times: &mut Vec<f64>, points: &mut Vec<DVec3>, rel: f64, p: DVec3) -> bool {
-    if times.last() == Some(&rel) {
-        *points.last_mut().expect("non-empty") = p;
+fn push_breakpoint(
+    last: &mut f64,
+    count: &mut u32,
+    store: Option<(&mut Vec<f64>, &mut Vec<DVec3>)>,
+    rel: f64,
+    p: DVec3,
+) -> bool {
+    if *last == rel {
+        if let Some((_, points)) = store {
+            *points.last_mut().expect("non-empty") = p;
+        }
         return false;
     }
-    times.push(rel);
-    points.push(p);
+    *last = rel;
+    *count += 1;
+    if let Some((times, points)) = store {
+        times.push(rel);
+        points.push(p);
+    }
     true
 }
 
 /// The trajectories of a run of vertices (see [`Trajectories::runs`]).
 pub struct TrajectoryRun<'a> {
     start: Tick,
+    me: u32,
     times: &'a mut [Vec<f64>],
     points: &'a mut [Vec<DVec3>],
+    last: &'a mut [f64],
+    count: &'a mut [u32],
+    holder: &'a [u32],
 }
 
 impl TrajectoryRun<'_> {
@@ -51,7 +89,8 @@ impl TrajectoryRun<'_> {
     #[inline]
     pub fn record(&mut self, j: usize, t: Tick, p: DVec3) -> bool {
         let rel = (t - self.start) as f64;
-        push_breakpoint(&mut self.times[j], &mut self.points[j], rel, p)
+        let store = (self.holder[j] == self.me).then(|| (&mut self.times[j], &mut self.points[j]));
+        push_breakpoint(&mut self.last[j], &mut self.count[j], store, rel, p)
     }
 }
 
@@ -63,25 +102,62 @@ pub struct BudgetExceeded {
 }
 
 impl Trajectories {
-    /// Storage for `n` vertices with a budget of `budget_bytes`.
+    /// Storage for `n` vertices with a budget of `budget_bytes`, every
+    /// vertex held here.
     pub fn new(n: usize, budget_bytes: usize) -> Self {
         Self {
             start: 0,
             times: vec![Vec::new(); n],
             points: vec![Vec::new(); n],
+            last: vec![0.0; n],
+            count: vec![0; n],
+            holder: vec![0; n],
+            me: 0,
+            cache: Default::default(),
             total: 0,
             budget: budget_bytes,
         }
     }
 
-    /// Starts a window at `start` with every vertex at `x` (keeps capacity).
+    /// Stores from now on only the breakpoints of the vertices `holder`
+    /// gives to rank `me` (one entry per vertex); frees the others'.
+    pub fn hold_only(&mut self, holder: Vec<u32>, me: u32) {
+        assert_eq!(holder.len(), self.len(), "one holder per vertex");
+        for (i, &h) in holder.iter().enumerate() {
+            if h != me {
+                self.times[i] = Vec::new();
+                self.points[i] = Vec::new();
+            }
+        }
+        self.holder = holder;
+        self.me = me;
+    }
+
+    /// The rank that stores each vertex's breakpoints.
+    pub fn holders(&self) -> &[u32] {
+        &self.holder
+    }
+
+    /// Whether vertex `i`'s breakpoints are stored here.
+    #[inline]
+    pub fn holds(&self, i: usize) -> bool {
+        self.holder[i] == self.me
+    }
+
+    /// Starts a window at `start` with every vertex at `x` (keeps capacity;
+    /// empties the cache of fetched polylines).
     pub fn begin(&mut self, start: Tick, x: &[DVec3]) {
         self.start = start;
+        self.cache.clear();
         for (i, &p) in x.iter().enumerate() {
-            self.times[i].clear();
-            self.points[i].clear();
-            self.times[i].push(0.0);
-            self.points[i].push(p);
+            self.last[i] = 0.0;
+            self.count[i] = 1;
+            if self.holder[i] == self.me {
+                self.times[i].clear();
+                self.points[i].clear();
+                self.times[i].push(0.0);
+                self.points[i].push(p);
+            }
         }
         self.total = x.len();
     }
@@ -90,7 +166,8 @@ impl Trajectories {
     #[inline]
     pub fn record(&mut self, i: usize, t: Tick, p: DVec3) -> Result<(), BudgetExceeded> {
         let rel = (t - self.start) as f64;
-        if push_breakpoint(&mut self.times[i], &mut self.points[i], rel, p) {
+        let store = (self.holder[i] == self.me).then(|| (&mut self.times[i], &mut self.points[i]));
+        if push_breakpoint(&mut self.last[i], &mut self.count[i], store, rel, p) {
             self.add_recorded(1)?;
         }
         Ok(())
@@ -100,17 +177,27 @@ impl Trajectories {
     /// [`crate::Executor::for_each_chunk`]), to record on several threads;
     /// report what they added with [`Trajectories::add_recorded`].
     pub fn runs(&mut self, bounds: &[usize]) -> Vec<TrajectoryRun<'_>> {
-        let start = self.start;
-        let times = crate::executor::split_chunks(&mut self.times, bounds);
-        let points = crate::executor::split_chunks(&mut self.points, bounds);
+        let (start, me) = (self.start, self.me);
+        use crate::executor::split_chunks;
+        let times = split_chunks(&mut self.times, bounds);
+        let points = split_chunks(&mut self.points, bounds);
+        let last = split_chunks(&mut self.last, bounds);
+        let count = split_chunks(&mut self.count, bounds);
         times
             .into_iter()
             .zip(points)
-            .map(|((_, times), (_, points))| TrajectoryRun {
-                start,
-                times,
-                points,
-            })
+            .zip(last.into_iter().zip(count))
+            .map(
+                |(((k, times), (_, points)), ((_, last), (_, count)))| TrajectoryRun {
+                    start,
+                    me,
+                    times,
+                    points,
+                    last,
+                    count,
+                    holder: &self.holder[bounds[k]..bounds[k + 1]],
+                },
+            )
             .collect()
     }
 
@@ -127,13 +214,57 @@ impl Trajectories {
         Ok(())
     }
 
-    /// The polyline of vertex `i`.
+    /// The polyline of vertex `i`: stored here, or fetched this window.
+    ///
+    /// # Panics
+    /// If vertex `i` is held by another rank and was not fetched: a caller
+    /// that forgot [`Trajectories::fetched`] (a bug, never bad input).
     #[inline]
     pub fn of(&self, i: usize) -> Trajectory<'_> {
-        Trajectory {
-            times: &self.times[i],
-            points: &self.points[i],
+        if self.holder[i] == self.me {
+            return Trajectory {
+                times: &self.times[i],
+                points: &self.points[i],
+            };
         }
+        let (times, points) = self.cache.get(&(i as u32)).unwrap_or_else(|| {
+            panic!(
+                "rank {}: vertex {i}'s trajectory is held by rank {} and was not fetched",
+                self.me, self.holder[i]
+            )
+        });
+        Trajectory { times, points }
+    }
+
+    /// Breakpoints of vertex `i` this window (known on every rank).
+    pub fn count(&self, i: usize) -> usize {
+        self.count[i] as usize
+    }
+
+    /// Whether vertex `i`'s polyline can be read here ([`Trajectories::of`]).
+    pub fn readable(&self, i: usize) -> bool {
+        self.holder[i] == self.me || self.cache.contains_key(&(i as u32))
+    }
+
+    /// Vertex `i`'s polyline as words: its times, then its points' coordinates
+    /// (`4 × count(i)` words), for another rank.
+    pub fn words_of(&self, i: usize, out: &mut Vec<f64>) {
+        let t = self.of(i);
+        out.extend_from_slice(t.times);
+        out.extend(t.points.iter().flat_map(|p| p.to_array()));
+    }
+
+    /// Keeps vertex `i`'s polyline received from its holder as the words of
+    /// [`Trajectories::words_of`]; returns how many words it took.
+    pub fn fetched(&mut self, i: usize, words: &[f64]) -> usize {
+        let n = self.count[i] as usize;
+        let times = words[..n].to_vec();
+        let points = words[n..4 * n]
+            .chunks_exact(3)
+            .map(|c| DVec3::new(c[0], c[1], c[2]))
+            .collect();
+        self.cache.insert(i as u32, (times, points));
+        4 * n
     }
 
     /// The window's start tick.
@@ -141,7 +272,8 @@ impl Trajectories {
         self.start
     }
 
-    /// Breakpoints stored this window (the start points included).
+    /// Breakpoints this window (the start points included), of every vertex
+    /// — held here or not.
     pub fn breakpoints(&self) -> usize {
         self.total
     }

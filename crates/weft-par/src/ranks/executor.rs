@@ -12,7 +12,7 @@
 //! same values in the same order — and every rank's state, and the result,
 //! has the same bits as on one memory. The one exchange that is not a
 //! collective is that of the internal forces' boundary slots
-//! ([`Executor::exchange_vectors`]): point to point to the neighbouring ranks
+//! ([`Executor::exchange_words`]): point to point to the neighbouring ranks
 //! that fold them, overlapped with the interior partitions (Algorithm 1). The rollback decision needs no
 //! extra reduction: every rank sees every narrow-phase answer.
 //!
@@ -223,31 +223,33 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
             .collect()
     }
 
-    fn exchange_vectors(
+    fn exchange_words(
         &self,
-        sends: Vec<(usize, Vec<DVec3>)>,
+        sends: Vec<(usize, Vec<f64>)>,
         recvs: &[(usize, usize)],
         overlap: &mut dyn FnMut(),
-    ) -> Result<Vec<Vec<DVec3>>, CommError> {
+    ) -> Result<Vec<Vec<f64>>, CommError> {
         let me = self.rank();
         let sends: Vec<(usize, Vec<u8>)> = sends
             .into_iter()
-            .map(|(peer, values)| (peer, vector_bytes(&values)))
+            .map(|(peer, words)| (peer, words.iter().flat_map(|w| w.to_le_bytes()).collect()))
             .collect();
-        let lens: Vec<(usize, usize)> = recvs.iter().map(|&(peer, n)| (peer, 24 * n)).collect();
+        let lens: Vec<(usize, usize)> = recvs.iter().map(|&(peer, n)| (peer, 8 * n)).collect();
         let parts = self.transport.exchange(sends, &lens, overlap)?;
         parts
             .iter()
             .zip(recvs)
             .map(|(part, &(peer, n))| {
-                let values = bytes_vectors(me, peer, part)?;
-                if values.len() != n {
+                if part.len() != 8 * n {
                     return Err(CommError(format!(
-                        "rank {me}: rank {peer} sent {} vectors, {n} expected",
-                        values.len()
+                        "rank {me}: rank {peer} sent {} bytes, {n} words expected",
+                        part.len()
                     )));
                 }
-                Ok(values)
+                Ok(part
+                    .chunks_exact(8)
+                    .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+                    .collect())
             })
             .collect()
     }
