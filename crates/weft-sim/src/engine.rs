@@ -1208,15 +1208,37 @@ impl<E: Executor> Engine<E> {
             .collect();
         // Each stencil's new state depends on its own certificates only, so
         // the stencils are decided on the executor and applied in key order.
-        let tasks = entries.len().div_ceil(TASK);
+        // Tasks are runs of entries; over ranks each stencil is decided on
+        // the rank that holds its first vertex's breakpoints (it then fetches
+        // only the polylines of the others held elsewhere).
         let ranks = self.exec.ranks();
-        let owner = place_in_blocks(tasks, ranks);
+        let holders = self.traj.holders();
+        let mut by_rank: Vec<Vec<usize>> = vec![Vec::new(); ranks];
+        for (n, (key, _)) in entries.iter().enumerate() {
+            let r = if ranks > 1 {
+                holders[key.v[0] as usize]
+            } else {
+                0
+            };
+            by_rank[r as usize].push(n);
+        }
+        let mut runs: Vec<&[usize]> = Vec::new();
+        let mut owner: Vec<u32> = Vec::new();
+        for (r, mine) in by_rank.iter().enumerate() {
+            for run in mine.chunks(TASK) {
+                runs.push(run);
+                owner.push(r as u32);
+            }
+        }
         if ranks > 1 {
             // Only the stencils among the candidates are certified again.
             let mut reads = vec![Vec::new(); ranks];
-            for (n, (key, _)) in entries.iter().enumerate() {
-                if candidates.binary_search(key).is_ok() {
-                    reads[owner[n / TASK] as usize].extend_from_slice(&key.v);
+            for (run, &r) in runs.iter().zip(&owner) {
+                for &n in *run {
+                    let key = &entries[n].0;
+                    if candidates.binary_search(key).is_ok() {
+                        reads[r as usize].extend_from_slice(&key.v);
+                    }
                 }
             }
             self.fetch_trajectories(reads)?;
@@ -1224,13 +1246,13 @@ impl<E: Executor> Engine<E> {
         let w = &self.world;
         let traj = &self.traj;
         let hysteresis = w.contact.retire_after_windows;
-        let decided = self.exec.map_on_ranks(tasks, &owner, &|t| {
-            let _span = trace::span_with("commit task", "first", (t * TASK) as u64);
+        let decided = self.exec.map_on_ranks(runs.len(), &owner, &|t| {
+            let _span = trace::span_with("commit task", "first", runs[t][0] as u64);
             let mut ccd = CcdStats::default();
-            let run = &entries[t * TASK..((t + 1) * TASK).min(entries.len())];
-            let states: Vec<(LayerState, u64)> = run
+            let states: Vec<(LayerState, u64)> = runs[t]
                 .iter()
-                .map(|&(key, mut s)| {
+                .map(|&n| {
+                    let (key, mut s) = entries[n];
                     // Only a candidate's polylines are read (over ranks,
                     // only those were fetched).
                     let near = candidates.binary_search(&key).is_ok();
@@ -1260,10 +1282,14 @@ impl<E: Executor> Engine<E> {
             (states, ccd)
         })?;
         let mut retired = 0;
-        let mut decided_states = Vec::with_capacity(entries.len());
-        for (states, ccd) in decided {
+        // (every entry is in exactly one run: each slot is overwritten)
+        let mut decided_states: Vec<(LayerState, u64)> =
+            entries.iter().map(|&(_, s)| (s, 0)).collect();
+        for ((states, ccd), run) in decided.into_iter().zip(&runs) {
             self.ccd.merge(&ccd);
-            decided_states.extend(states);
+            for (state, &n) in states.into_iter().zip(*run) {
+                decided_states[n] = state;
+            }
         }
         let layers = &mut self.world.layers.stencils;
         for ((key, _), (s, r)) in entries.iter().zip(decided_states) {
