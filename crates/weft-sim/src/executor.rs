@@ -11,8 +11,8 @@
 //! [`Executor::map_on_ranks`] and [`Executor::chunks_on_ranks`] compute each
 //! item on one rank and hand every rank all results. They are **collective**:
 //! every rank's engine calls them in the same order with the same arguments —
-//! which holds because every rank holds the same state and takes the same
-//! decisions. On a single-memory executor they are `map` and
+//! which holds because every rank takes the same decisions (from the same
+//! positions, velocities and active layers). On a single-memory executor they are `map` and
 //! `for_each_chunk`.
 
 use serde::{de::DeserializeOwned, Serialize};

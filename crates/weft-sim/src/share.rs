@@ -1,5 +1,6 @@
 //! A rank's share of the internal ticks when the run is spread over ranks
-//! that each hold the whole state (`Executor::ranks() > 1`).
+//! that each hold every vertex's position and velocity (`Executor::ranks() >
+//! 1`).
 //!
 //! Rank `r` evaluates the internal stencils of the partitions placed on it
 //! ([`crate::internal::InternalForces::home_ranks`]), and folds and advances

@@ -1,19 +1,21 @@
 //! The `Ranks` executor: one rank of a run spread over ranks that share no
 //! memory, talking only through a [`Transport`].
 //!
-//! Every rank holds the whole state and runs the engine's control flow; the
-//! heavy stages are spread: a rank evaluates the internal forces of the
-//! partitions placed on it, the penalty closest points and kicks of its block
-//! of awake stencils, its block of the broad phase's vertex DOPs and its
-//! round-robin share of the traversal tasks, the narrow-phase tasks the
-//! locality-aware balancer gives it (Algorithm 2 of the paper), and the
-//! retirement certificates of its block of active stencils. After each stage
-//! one all-gather hands every rank every result, so every rank applies the
-//! same values in the same order — and every rank's state, and the result,
-//! has the same bits as on one memory. The one exchange that is not a
-//! collective is that of the internal forces' boundary slots
-//! ([`Executor::exchange_words`]): point to point to the neighbouring ranks
-//! that fold them, overlapped with the interior partitions (Algorithm 1). The rollback decision needs no
+//! Every rank holds every vertex's position and velocity (trajectory
+//! breakpoints only for the vertices it owns) and runs the engine's control
+//! flow; the heavy stages are spread: a rank evaluates the internal forces of
+//! the partitions placed on it, the penalty closest points and kicks of its
+//! block of awake stencils, the broad phase's DOPs of the vertices it holds
+//! and its round-robin share of the traversal tasks, the narrow-phase tasks
+//! the locality-aware balancer gives it (Algorithm 2 of the paper), and the
+//! retirement certificates of the stencils whose first vertex it holds. After
+//! each stage one all-gather hands every rank every result, so every rank
+//! applies the same values in the same order — and every rank's state, and
+//! the result, has the same bits as on one memory. The exchanges that are not
+//! collectives ([`Executor::exchange_words`], point to point) carry the
+//! internal forces' boundary slots to the neighbouring ranks that fold them,
+//! overlapped with the interior partitions (Algorithm 1), and the polylines
+//! a task reads from the ranks that hold them. The rollback decision needs no
 //! extra reduction: every rank sees every narrow-phase answer.
 //!
 //! Within a rank, the rank's own share runs on a local executor (threads).
