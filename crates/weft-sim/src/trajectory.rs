@@ -288,3 +288,84 @@ impl Trajectories {
         self.times.is_empty()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The same window on one memory and on two ranks that each hold half
+    /// the vertices: records through `record` and through runs, an instant
+    /// recorded twice, then every polyline read on rank 0 (its own, and the
+    /// others fetched from rank 1) has the bits of the one-memory polyline.
+    #[test]
+    fn held_and_fetched_polylines_equal_the_one_memory_ones() {
+        let n = 7;
+        let x: Vec<DVec3> = (0..n).map(|i| DVec3::new(i as f64, 0.5, -1.0)).collect();
+        let holder: Vec<u32> = (0..n).map(|i| (i % 2) as u32).collect();
+        let mut all = Trajectories::new(n, usize::MAX);
+        let mut ranks: Vec<Trajectories> = (0..2)
+            .map(|r| {
+                let mut t = Trajectories::new(n, usize::MAX);
+                t.hold_only(holder.clone(), r);
+                t
+            })
+            .collect();
+        let bounds = [0, 3, n];
+        for t in std::iter::once(&mut all).chain(ranks.iter_mut()) {
+            t.begin(100, &x);
+            for step in 1..=3u64 {
+                for i in (0..n).filter(|i| (i + step as usize) % 3 != 0) {
+                    let p = x[i] + DVec3::splat(step as f64 * 0.1 + i as f64 * 1e-3);
+                    t.record(i, 100 + 10 * step, p).unwrap();
+                }
+                // the window end right after a kick: the same instant again
+                t.record(2, 100 + 10 * step, DVec3::splat(-0.25)).unwrap();
+            }
+            let mut added = 0;
+            for mut run in t.runs(&bounds) {
+                for j in 0..run.holder.len() {
+                    added += usize::from(run.record(j, 150, DVec3::splat(j as f64)));
+                }
+            }
+            t.add_recorded(added).unwrap();
+        }
+        assert!(ranks.iter().all(|t| t.breakpoints() == all.breakpoints()));
+        // rank 1 sends rank 0 the polylines of the vertices it holds
+        let theirs: Vec<usize> = (0..n).filter(|&i| holder[i] == 1).collect();
+        let mut words = Vec::new();
+        for &i in &theirs {
+            assert!(ranks[1].holds(i) && !ranks[0].readable(i));
+            ranks[1].words_of(i, &mut words);
+        }
+        let mut at = 0;
+        for &i in &theirs {
+            at += ranks[0].fetched(i, &words[at..]);
+        }
+        assert_eq!(at, words.len());
+        let bits = |t: Trajectory<'_>| {
+            let times: Vec<u64> = t.times.iter().map(|v| v.to_bits()).collect();
+            let points: Vec<[u64; 3]> = t
+                .points
+                .iter()
+                .map(|p| p.to_array().map(f64::to_bits))
+                .collect();
+            (times, points)
+        };
+        for i in 0..n {
+            assert_eq!(ranks[0].count(i), all.of(i).times.len(), "vertex {i}");
+            assert_eq!(bits(ranks[0].of(i)), bits(all.of(i)), "vertex {i}");
+        }
+        // a new window empties the cache
+        ranks[0].begin(200, &x);
+        assert!(!ranks[0].readable(1) && ranks[0].readable(0));
+    }
+
+    #[test]
+    #[should_panic(expected = "held by rank 1 and was not fetched")]
+    fn reading_an_unfetched_polyline_is_a_bug_caught_loudly() {
+        let mut t = Trajectories::new(2, usize::MAX);
+        t.hold_only(vec![0, 1], 0);
+        t.begin(0, &[DVec3::ZERO, DVec3::ONE]);
+        let _ = t.of(1);
+    }
+}
