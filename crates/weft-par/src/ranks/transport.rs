@@ -178,16 +178,19 @@ impl ChannelTransport {
         }
     }
 
-    /// Sends `bytes` to rank `j` (not this rank).
-    fn send(&self, j: usize, bytes: Vec<u8>) -> Result<(), RankFailure> {
-        let to = self
-            .to
-            .get(j)
+    /// The end of a channel with rank `j` in `ends` (`to` or `from`).
+    fn end<'a, C>(&self, ends: &'a [Option<C>], j: usize) -> Result<&'a C, RankFailure> {
+        ends.get(j)
             .and_then(Option::as_ref)
             .ok_or_else(|| RankFailure {
                 rank: self.rank,
-                what: format!("no channel to rank {j}"),
-            })?;
+                what: format!("no channel with rank {j}"),
+            })
+    }
+
+    /// Sends `bytes` to rank `j` (not this rank).
+    fn send(&self, j: usize, bytes: Vec<u8>) -> Result<(), RankFailure> {
+        let to = self.end(&self.to, j)?;
         let len = bytes.len() as u64;
         to.send(bytes).map_err(|_| self.gone(j))?;
         self.sent.add(1, len);
@@ -196,14 +199,7 @@ impl ChannelTransport {
 
     /// The next message from rank `j` (not this rank), waiting for it.
     fn receive(&self, j: usize) -> Result<Vec<u8>, RankFailure> {
-        let from = self
-            .from
-            .get(j)
-            .and_then(Option::as_ref)
-            .ok_or_else(|| RankFailure {
-                rank: self.rank,
-                what: format!("no channel from rank {j}"),
-            })?;
+        let from = self.end(&self.from, j)?;
         let inbox = from.lock().map_err(|_| self.gone(j))?;
         inbox.recv().map_err(|_| self.gone(j))
     }
