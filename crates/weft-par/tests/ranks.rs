@@ -166,7 +166,7 @@ fn rank_shares_mirror_and_cover_every_fold() {
                     .flat_map(|(_, s)| s.iter().copied())
                     .collect();
                 for i in 0..w.num_vertices() {
-                    if !share.own_vertex[i] {
+                    if !share.owns(i) {
                         continue;
                     }
                     for &s in w.internal.incidence(i) {

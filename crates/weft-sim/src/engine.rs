@@ -727,14 +727,13 @@ impl<E: Executor> Engine<E> {
                     })?;
                 }
             }
-            let own_vertex = share.map(|s| &s.own_vertex[..]);
             let h = w.lattice.h_el();
             let out = &ws.out;
             self.exec
                 .for_each_chunk(&mut ws.acc, &ws.vertex_runs, &|k, run| {
                     for (j, a) in run.iter_mut().enumerate() {
                         let i = k * VERTEX_RUN + j;
-                        if own_vertex.is_some_and(|own| !own[i]) {
+                        if share.is_some_and(|s| !s.owns(i)) {
                             continue; // folded by its owner
                         }
                         if w.inv_mass[i] > 0.0 {
@@ -910,12 +909,11 @@ impl<E: Executor> Engine<E> {
         if internal {
             let (xt, acc, friction, fmax) = (&ws.xt, &ws.acc, &ws.friction, &ws.friction_max);
             let share = self.share.as_ref();
-            let own_vertex = share.map(|s| &s.own_vertex[..]);
             self.exec
                 .for_each_chunk(&mut ws.v_new, &ws.vertex_runs, &|k, run| {
                     for (j, v) in run.iter_mut().enumerate() {
                         let i = k * VERTEX_RUN + j;
-                        if own_vertex.is_some_and(|own| !own[i]) {
+                        if share.is_some_and(|s| !s.owns(i)) {
                             continue; // advanced by its owner
                         }
                         let impulse = (acc[i], friction[i], fmax[i]);

@@ -44,8 +44,6 @@ pub struct RankShare {
     pub interior_partition: Vec<bool>,
     /// Per vertex: the rank that folds and advances it (its owner).
     pub owner: Vec<u32>,
-    /// Per vertex: folded and advanced on this rank.
-    pub own_vertex: Vec<bool>,
     /// Per peer rank (ascending): the slots this rank computes that the
     /// peer's vertices fold (ascending).
     pub send_slots: Vec<(usize, Vec<u32>)>,
@@ -113,12 +111,17 @@ impl RankShare {
             boundary_partition,
             interior_partition,
             home,
-            own_vertex: owner.iter().map(|&r| r as usize == rank).collect(),
             owner,
             send_slots,
             recv_slots,
             owned,
         }
+    }
+
+    /// Whether vertex `i` is folded and advanced on this rank.
+    #[inline]
+    pub fn owns(&self, i: usize) -> bool {
+        self.owner[i] as usize == self.rank
     }
 
     /// **Point to point with the neighbours.** Sends the boundary slots of
