@@ -1206,19 +1206,19 @@ impl<E: Executor> Engine<E> {
             .collect();
         // Each stencil's new state depends on its own certificates only, so
         // the stencils are decided on the executor and applied in key order.
-        // Tasks are runs of entries; over ranks each stencil is decided on
-        // the rank that holds its first vertex's breakpoints (it then fetches
-        // only the polylines of the others held elsewhere).
+        // Tasks are runs of entries; each stencil is decided on the rank
+        // that holds its first vertex's breakpoints (on one memory every
+        // vertex is held by rank 0). Only the stencils among the candidates
+        // are certified again, so only their polylines are read — over
+        // ranks, fetched when held elsewhere.
         let ranks = self.exec.ranks();
         let holders = self.traj.holders();
+        let near: Vec<bool> = (entries.iter())
+            .map(|(key, _)| candidates.binary_search(key).is_ok())
+            .collect();
         let mut by_rank: Vec<Vec<usize>> = vec![Vec::new(); ranks];
         for (n, (key, _)) in entries.iter().enumerate() {
-            let r = if ranks > 1 {
-                holders[key.v[0] as usize]
-            } else {
-                0
-            };
-            by_rank[r as usize].push(n);
+            by_rank[holders[key.v[0] as usize] as usize].push(n);
         }
         let mut runs: Vec<&[usize]> = Vec::new();
         let mut owner: Vec<u32> = Vec::new();
@@ -1229,14 +1229,10 @@ impl<E: Executor> Engine<E> {
             }
         }
         if ranks > 1 {
-            // Only the stencils among the candidates are certified again.
             let mut reads = vec![Vec::new(); ranks];
             for (run, &r) in runs.iter().zip(&owner) {
-                for &n in *run {
-                    let key = &entries[n].0;
-                    if candidates.binary_search(key).is_ok() {
-                        reads[r as usize].extend_from_slice(&key.v);
-                    }
+                for &n in run.iter().filter(|&&n| near[n]) {
+                    reads[r as usize].extend_from_slice(&entries[n].0.v);
                 }
             }
             self.fetch_trajectories(reads)?;
@@ -1251,10 +1247,7 @@ impl<E: Executor> Engine<E> {
                 .iter()
                 .map(|&n| {
                     let (key, mut s) = entries[n];
-                    // Only a candidate's polylines are read (over ranks,
-                    // only those were fetched).
-                    let near = candidates.binary_search(&key).is_ok();
-                    let tr = near.then(|| key.v.map(|i| traj.of(i as usize)));
+                    let tr = near[n].then(|| key.v.map(|i| traj.of(i as usize)));
                     let mut certified_outside = |eta: f64| -> bool {
                         tr.as_ref()
                             .is_none_or(|tr| !proximity(key.kind, tr, eta, &mut ccd))
