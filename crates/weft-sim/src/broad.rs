@@ -85,8 +85,6 @@ pub struct BroadPhase {
     labels: Vec<u32>,
     /// the groups' trees, built on the first pass over a mesh.
     groups: Vec<Group>,
-    /// per vertex: the DOP of its breakpoints.
-    raw_dops: Vec<Dop26>,
     /// per vertex: the DOP of its breakpoints, and that DOP inflated.
     vertex_dops: Vec<[Dop26; 2]>,
     tri_dops: Vec<Dop26>,
@@ -188,7 +186,6 @@ impl BroadPhase {
         let Self {
             labels: _,
             groups,
-            raw_dops,
             vertex_dops,
             tri_dops,
             bounds,
@@ -202,12 +199,12 @@ impl BroadPhase {
         // ranks each vertex's DOP is computed by the rank that holds its
         // breakpoints (the one step that reads them all), and every rank gets
         // every DOP with its exact bits; the inflated copies are made locally.
-        *raw_dops = exec.map_on_ranks(traj.len(), traj.holders(), &|i| {
+        let raw = exec.map_on_ranks(traj.len(), traj.holders(), &|i| {
             Dop26::from_points(traj.of(i).points.iter().copied())
         })?;
         runs(traj.len(), bounds);
         vertex_dops.resize(traj.len(), [Dop26::empty(); 2]);
-        let raw: &[Dop26] = raw_dops;
+        let raw: &[Dop26] = &raw;
         exec.for_each_chunk(vertex_dops, bounds, &|k, chunk: &mut [[Dop26; 2]]| {
             for (&raw, d) in raw[k * RUN..].iter().zip(chunk.iter_mut()) {
                 let mut inflated = raw;
