@@ -234,7 +234,7 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         let me = self.rank();
         let sends: Vec<(usize, Vec<u8>)> = sends
             .into_iter()
-            .map(|(peer, words)| (peer, words.iter().flat_map(|w| w.to_le_bytes()).collect()))
+            .map(|(peer, words)| (peer, word_bytes(words.len(), words)))
             .collect();
         let lens: Vec<(usize, usize)> = recvs.iter().map(|&(peer, n)| (peer, 8 * n)).collect();
         let parts = self.transport.exchange(sends, &lens, overlap)?;
@@ -248,25 +248,30 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
                         part.len()
                     )));
                 }
-                Ok(part
-                    .chunks_exact(8)
-                    .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
-                    .collect())
+                Ok(bytes_words(part).collect())
             })
             .collect()
     }
 }
 
-/// Raw little-endian bits (eight bytes per coordinate): exact, and far
-/// cheaper than a generic encoding for what travels every internal tick.
-fn vector_bytes(values: &[DVec3]) -> Vec<u8> {
-    let mut bytes = Vec::with_capacity(24 * values.len());
-    for v in values {
-        for x in v.to_array() {
-            bytes.extend_from_slice(&x.to_le_bytes());
-        }
+/// Raw little-endian bits, eight bytes per word (`n` of them): exact, and
+/// far cheaper than a generic encoding for what travels every internal tick.
+fn word_bytes(n: usize, words: impl IntoIterator<Item = f64>) -> Vec<u8> {
+    let mut bytes = Vec::with_capacity(8 * n);
+    for w in words {
+        bytes.extend_from_slice(&w.to_le_bytes());
     }
     bytes
+}
+
+/// The words of [`word_bytes`] (`bytes.len()` a multiple of 8).
+fn bytes_words(bytes: &[u8]) -> impl Iterator<Item = f64> + '_ {
+    (bytes.chunks_exact(8)).map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+}
+
+/// The coordinates of `values` as [`word_bytes`].
+fn vector_bytes(values: &[DVec3]) -> Vec<u8> {
+    word_bytes(3 * values.len(), values.iter().flat_map(|v| v.to_array()))
 }
 
 /// The vectors of [`vector_bytes`], received by rank `me` from rank `from`.
@@ -280,8 +285,9 @@ fn bytes_vectors(me: usize, from: usize, bytes: &[u8]) -> Result<Vec<DVec3>, Com
     Ok(bytes
         .chunks_exact(24)
         .map(|v| {
-            let w = |k: usize| f64::from_le_bytes(v[8 * k..8 * k + 8].try_into().expect("8 bytes"));
-            DVec3::new(w(0), w(1), w(2))
+            let mut w = bytes_words(v);
+            let mut next = || w.next().expect("three words");
+            DVec3::new(next(), next(), next())
         })
         .collect())
 }
