@@ -173,6 +173,17 @@ mod mpi {
         output_within(c, Duration::from_secs(240))
     }
 
+    /// `weft run --resume dir` on `ranks` MPI ranks of one thread, killed
+    /// after `limit`.
+    fn resume_fixture(ranks: usize, dir: &Path, extra: &[&str], limit: Duration) -> Output {
+        let mut c = mpirun(ranks);
+        c.args(["run", "--resume"])
+            .arg(dir)
+            .args(["--threads", "1", "--quiet", "--no-preview"])
+            .args(extra);
+        output_within(c, limit)
+    }
+
     #[test]
     fn mpi_ranks_and_threads_give_the_fixture_hash() {
         for ranks in [1, 2, 4] {
@@ -191,16 +202,13 @@ mod mpi {
         let dir = tempfile::tempdir().unwrap();
         let s = summary(&run_fixture(2, 1, dir.path(), &["--stop-after", "0"]));
         assert_eq!(s["complete"], false, "{s}");
-        let mut c = mpirun(4);
-        c.args(["run", "--resume"]).arg(dir.path()).args([
-            "--threads",
-            "1",
-            "--quiet",
-            "--no-preview",
-            "--stop-after",
-            "0",
-        ]);
-        let s = summary(&output_within(c, Duration::from_secs(240)));
+        let o = resume_fixture(
+            4,
+            dir.path(),
+            &["--stop-after", "0"],
+            Duration::from_secs(240),
+        );
+        let s = summary(&o);
         assert_eq!(s["complete"], false, "{s}");
         // Then without MPI at all.
         let s = summary(&resume(dir.path(), &["--threads", "2"]));
@@ -229,14 +237,7 @@ mod mpi {
         let middle = bytes.len() / 2;
         bytes[middle] ^= 0xff;
         std::fs::write(&ck, bytes).unwrap();
-        let mut c = mpirun(3);
-        c.args(["run", "--resume"]).arg(dir.path()).args([
-            "--threads",
-            "1",
-            "--quiet",
-            "--no-preview",
-        ]);
-        let o = output_within(c, Duration::from_secs(120));
+        let o = resume_fixture(3, dir.path(), &[], Duration::from_secs(120));
         assert_eq!(o.status.code(), Some(1), "{o:?}");
         let err = String::from_utf8_lossy(&o.stderr);
         let errors = err.lines().filter(|l| l.starts_with("error:")).count();
