@@ -610,7 +610,7 @@ pub(crate) fn execute_prepared<E: Executor>(
 
 /// The checkpoint in run folder `out`, if it can be resumed by a scene whose
 /// hash is `hash`.
-pub(crate) fn read_resumable(out: &Path, hash: &str) -> anyhow::Result<Checkpoint> {
+fn read_resumable(out: &Path, hash: &str) -> anyhow::Result<Checkpoint> {
     let path = out.join(CHECKPOINT_FILE);
     if !path.exists() {
         bail!(
