@@ -18,7 +18,7 @@ use weft_par::Threads;
 use weft_sim::{Engine, Executor, Serial};
 
 /// `state_hash` of the fixture below.
-const FIXTURE_HASH: &str = "a9602faf0c12c4545a72753375260422";
+const FIXTURE_HASH: &str = "8995028407ecd8365b22d59d5a36a74b";
 
 struct Outcome {
     hash: String,
@@ -84,8 +84,10 @@ fn all_executors_agree(partitions: usize) {
         "{label}: depth {}",
         reference.max_depth
     );
+    // (479 at every P since friction is clamped per stencil, not per vertex:
+    // the cloth grips and folds less than with the under-applied friction.)
     assert!(
-        reference.peak_active >= 500,
+        reference.peak_active >= 400,
         "{label}: peak {}",
         reference.peak_active
     );

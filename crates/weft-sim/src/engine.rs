@@ -36,7 +36,7 @@ use crate::diagnostics::{StageSeconds, WindowStats};
 use crate::dormancy::Dormancy;
 use crate::error::SimError;
 use crate::executor::{place_in_blocks, split_chunks, CommError, Executor, Serial};
-use crate::layers::{penalty_kick, LayerState, PenaltyImpulse};
+use crate::layers::{penalty_kick, FrictionClamp, LayerState, PenaltyImpulse};
 use crate::share::RankShare;
 use crate::state::EngineState;
 use crate::trace;
@@ -174,10 +174,10 @@ struct PassCounts {
 struct Workspace {
     xt: Vec<DVec3>,
     out: Vec<DVec3>,
+    /// Per vertex: the batch's impulses (internal, normal, clamped friction).
     acc: Vec<DVec3>,
-    /// Friction impulses of the batch and the largest single one, per vertex.
-    friction: Vec<DVec3>,
-    friction_max: Vec<f64>,
+    /// The batch's friction clamp (scratch, clear between batches).
+    friction: FrictionClamp,
     touched: Vec<u32>,
     is_touched: Vec<bool>,
     /// Per active stencil: its anchor, if evaluated in this pass.
@@ -206,8 +206,6 @@ impl Workspace {
     /// Forgets the impulses of an unfinished batch.
     fn clear_accumulators(&mut self) {
         self.acc.fill(DVec3::ZERO);
-        self.friction.fill(DVec3::ZERO);
-        self.friction_max.fill(0.0);
         self.is_touched.fill(false);
         self.touched.clear();
     }
@@ -277,8 +275,7 @@ impl<E: Executor> Engine<E> {
                 xt: vec![DVec3::ZERO; n],
                 out: vec![DVec3::ZERO; world.internal.num_slots()],
                 acc: vec![DVec3::ZERO; n],
-                friction: vec![DVec3::ZERO; n],
-                friction_max: vec![0.0; n],
+                friction: FrictionClamp::new(n),
                 is_touched: vec![false; n],
                 v_new: vec![DVec3::ZERO; n],
                 vertex_runs: (0..=n.div_ceil(VERTEX_RUN))
@@ -881,17 +878,31 @@ impl<E: Executor> Engine<E> {
             } else {
                 ws.kicks.extend(items.iter().map(kick_of));
             }
-            for (&(_, h), kick) in items.iter().zip(&ws.kicks) {
-                let &Some((k, mu)) = kick else { continue };
-                let key = &active[ws.hits[h as usize].0 as usize].0;
+            // Fold in (layer, key) order: the friction clamp's sums first,
+            // then each kick with its friction scaled as a whole (see
+            // `FrictionClamp`), then the clamp's scratch is cleared.
+            let kicked = || {
+                (items.iter().zip(&ws.kicks)).filter_map(|(&(_, h), kick)| {
+                    let (k, mu) = kick.as_ref()?;
+                    Some((&active[ws.hits[h as usize].0 as usize].0, k, *mu > 0.0))
+                })
+            };
+            for (key, k, _) in kicked().filter(|k| k.2) {
+                ws.friction.add(&key.v, &w.inv_mass, k);
+            }
+            for (key, k, rubs) in kicked() {
                 counts.layer_kicks += 1;
+                let s = if rubs {
+                    ws.friction.scale(&key.v, &w.inv_mass, k)
+                } else {
+                    0.0
+                };
                 for j in 0..4 {
                     let i = key.v[j] as usize;
                     if w.inv_mass[i] > 0.0 {
                         ws.acc[i] += k.normal[j];
-                        if mu > 0.0 {
-                            ws.friction[i] += k.friction[j];
-                            ws.friction_max[i] = ws.friction_max[i].max(k.friction[j].length());
+                        if rubs {
+                            ws.acc[i] += k.friction[j] * s;
                         }
                         if !ws.is_touched[i] {
                             ws.is_touched[i] = true;
@@ -900,6 +911,9 @@ impl<E: Executor> Engine<E> {
                     }
                 }
             }
+            for (key, _, _) in kicked().filter(|k| k.2) {
+                ws.friction.clear(&key.v);
+            }
         }
         // Apply: new velocities (on the executor for an internal batch, which
         // touches every vertex); then, in vertex order, drift and record only
@@ -907,7 +921,7 @@ impl<E: Executor> Engine<E> {
         let h = w.lattice.h_el();
         let tsec = w.lattice.seconds(t);
         if internal {
-            let (xt, acc, friction, fmax) = (&ws.xt, &ws.acc, &ws.friction, &ws.friction_max);
+            let (xt, acc) = (&ws.xt, &ws.acc);
             let share = self.share.as_ref();
             self.exec
                 .for_each_chunk(&mut ws.v_new, &ws.vertex_runs, &|k, run| {
@@ -916,8 +930,7 @@ impl<E: Executor> Engine<E> {
                         if share.is_some_and(|s| !s.owns(i)) {
                             continue; // advanced by its owner
                         }
-                        let impulse = (acc[i], friction[i], fmax[i]);
-                        *v = new_velocity(w, i, true, xt[i], impulse, tsec, h);
+                        *v = new_velocity(w, i, true, xt[i], acc[i], tsec, h);
                     }
                 });
             if let Some(share) = share {
@@ -935,11 +948,8 @@ impl<E: Executor> Engine<E> {
             let i = i as usize;
             let v_old = world.v[i];
             let x = Self::pos_at(world, i, t);
-            let impulse = (ws.acc[i], ws.friction[i], ws.friction_max[i]);
-            let v_new = new_velocity(world, i, false, x, impulse, tsec, h);
+            let v_new = new_velocity(world, i, false, x, ws.acc[i], tsec, h);
             ws.acc[i] = DVec3::ZERO;
-            ws.friction[i] = DVec3::ZERO;
-            ws.friction_max[i] = 0.0;
             ws.is_touched[i] = false;
             if v_new != v_old {
                 if !(x.is_finite() && v_new.is_finite()) {
@@ -1384,16 +1394,16 @@ impl<E: Executor> Engine<E> {
     }
 }
 
-/// Vertex `i`'s velocity after a batch at `tsec` in which it received
-/// `(normal + internal impulse, friction impulse, largest single friction
-/// impulse)`; `x` is its position at the batch. A scripted vertex follows the
-/// chord of its script at internal ticks and keeps its velocity otherwise.
+/// Vertex `i`'s velocity after a batch at `tsec` in which it received the
+/// impulse `impulse` (internal, normal and clamped friction); `x` is its
+/// position at the batch. A scripted vertex follows the chord of its script
+/// at internal ticks and keeps its velocity otherwise.
 fn new_velocity(
     w: &World,
     i: usize,
     internal: bool,
     x: DVec3,
-    (acc, friction, friction_max): (DVec3, DVec3, f64),
+    impulse: DVec3,
     tsec: f64,
     h: f64,
 ) -> DVec3 {
@@ -1404,15 +1414,7 @@ fn new_velocity(
             w.v[i]
         }
     } else {
-        // Per-vertex friction clamp: the batch's summed friction is at most
-        // the largest single stencil's, which on its own only stops (never
-        // reverses) that stencil's relative sliding.
-        let mut f = friction;
-        let len = f.length();
-        if len > friction_max {
-            f *= friction_max / len;
-        }
-        w.v[i] + (acc + f) * w.inv_mass[i]
+        w.v[i] + impulse * w.inv_mass[i]
     }
 }
 

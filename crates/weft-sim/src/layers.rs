@@ -137,6 +137,11 @@ pub struct PenaltyImpulse {
     pub normal: [DVec3; 4],
     /// Friction impulse on each vertex (N·s).
     pub friction: [DVec3; 4],
+    /// The tangential impulse that on its own would stop the stencil's
+    /// relative sliding, as a multiple of the one applied (≥ 1; exactly 1
+    /// when the kick stops the sliding, 0 without friction). A batch's
+    /// friction clamp ([`FrictionClamp`]) reads it.
+    pub stop_ratio: f64,
     /// Energy of the layer at the event (J), for diagnostics.
     pub energy: f64,
 }
@@ -153,7 +158,9 @@ pub struct PenaltyImpulse {
 /// tangential impulse `I_t = -min(mu J_n, |v_t| / Σ c_j² w_j) v_t/|v_t|`
 /// (at most what stops the relative sliding) is distributed as `c_j I_t`.
 /// Both parts sum to zero over the stencil (Σ c_j = 0): linear momentum is
-/// conserved; friction does not conserve angular momentum.
+/// conserved; friction does not conserve angular momentum. Kicks of one
+/// batch read the same velocities, so their friction is clamped together
+/// afterwards ([`FrictionClamp`]), one factor per stencil.
 pub fn penalty_kick(
     eta: f64,
     k: f64,
@@ -170,6 +177,7 @@ pub fn penalty_kick(
     let jn = h * k * gap;
     let normal = c.coeff.map(|cj| c.n * (jn * cj));
     let mut friction = [DVec3::ZERO; 4];
+    let mut stop_ratio = 0.0;
     if mu > 0.0 {
         let mut v_rel = DVec3::ZERO;
         let mut m_inv = 0.0;
@@ -180,16 +188,93 @@ pub fn penalty_kick(
         let v_t = v_rel - c.n * v_rel.dot(c.n);
         let speed = v_t.length();
         if speed > 0.0 && m_inv > 0.0 {
-            let magnitude = (mu * jn).min(speed / m_inv);
+            let stop = speed / m_inv;
+            let magnitude = (mu * jn).min(stop);
             let it = v_t * (-magnitude / speed);
             friction = c.coeff.map(|cj| it * cj);
+            stop_ratio = stop / magnitude;
         }
     }
     Some(PenaltyImpulse {
         normal,
         friction,
+        stop_ratio,
         energy: 0.5 * k * gap * gap,
     })
+}
+
+/// The friction clamp of one batch (`acm-spec.md` §3: the summed tangential
+/// impulses of a batch never reverse a vertex's sliding), acting on whole
+/// stencil impulses so that every kick still conserves linear momentum.
+///
+/// A kick's friction at most stops its own stencil's relative sliding, but
+/// the kicks of one batch all read the velocities at its start (Jacobi), so
+/// several stencils at one vertex could together overshoot. The rule: the
+/// friction vertex `i` receives in a batch, `Σ_k |f_ki|` over its stencils
+/// `k`, may not exceed `L_i = max_k |f_ki| · stop_ratio_k`, the impulse the
+/// most demanding single stencil at `i` would need to stop its sliding there.
+/// A vertex over its limit gets the factor `s_i = L_i / Σ_k |f_ki|`; each
+/// stencil's friction is scaled by the smallest factor among its dynamic
+/// vertices, as a whole. Then
+///
+/// * every kick's friction still sums to zero over its stencil (linear
+///   momentum is conserved whatever the clamp does);
+/// * vertex `i` receives at most `Σ_k s_k |f_ki| ≤ s_i Σ_k |f_ki| ≤ L_i`;
+/// * a vertex in one stencil is never clamped (`|f| ≤ |f| · stop_ratio`), and
+///   sliding contacts sharing a load keep their full Coulomb friction as long
+///   as its sum stays below what stops the vertex.
+///
+/// The sums are folded in the batch's (layer, key) order, so the factors are
+/// the same bits wherever the batch runs.
+#[derive(Clone, Debug, Default)]
+pub struct FrictionClamp {
+    /// Per vertex: `Σ_k |f_ki|` and `L_i` of the batch so far (0 when none).
+    sum: Vec<f64>,
+    limit: Vec<f64>,
+}
+
+impl FrictionClamp {
+    /// Scratch for `n` vertices.
+    pub fn new(n: usize) -> Self {
+        Self {
+            sum: vec![0.0; n],
+            limit: vec![0.0; n],
+        }
+    }
+
+    /// Adds the friction of a kick on stencil vertices `v` (first pass over
+    /// the batch, in fold order); `w` are the inverse masses of every vertex.
+    pub fn add(&mut self, v: &[u32; 4], w: &[f64], kick: &PenaltyImpulse) {
+        for j in 0..4 {
+            let i = v[j] as usize;
+            let f = kick.friction[j].length();
+            if w[i] > 0.0 && f > 0.0 {
+                self.sum[i] += f;
+                self.limit[i] = self.limit[i].max(f * kick.stop_ratio);
+            }
+        }
+    }
+
+    /// The factor (in `(0, 1]`) by which the whole friction impulse of a kick
+    /// added before is scaled (second pass).
+    pub fn scale(&self, v: &[u32; 4], w: &[f64], kick: &PenaltyImpulse) -> f64 {
+        let mut s = 1.0f64;
+        for j in 0..4 {
+            let i = v[j] as usize;
+            if w[i] > 0.0 && kick.friction[j] != DVec3::ZERO && self.sum[i] > self.limit[i] {
+                s = s.min(self.limit[i] / self.sum[i]);
+            }
+        }
+        s
+    }
+
+    /// Forgets the batch's sums at stencil vertices `v` (after the second pass).
+    pub fn clear(&mut self, v: &[u32; 4]) {
+        for &i in v {
+            self.sum[i as usize] = 0.0;
+            self.limit[i as usize] = 0.0;
+        }
+    }
 }
 
 #[cfg(test)]
@@ -241,5 +326,81 @@ mod tests {
         assert!(total.length() < 1e-18);
         assert!(k.normal[0].z > 0.0, "pushes the vertex out along n");
         assert!(k.friction[0].x < 0.0, "friction opposes sliding");
+    }
+
+    /// Random batches of kicks on a few shared vertices: after the clamp
+    /// every kick still sums to zero over its stencil, no vertex receives
+    /// more than its limit, and a vertex in one stencil is left alone.
+    #[test]
+    fn friction_clamp_scales_whole_stencils_and_respects_each_limit() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rnd = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let n = 6;
+        let w = [1.0, 2.0, 0.5, 0.0, 1.5, 3.0]; // vertex 3 is kinematic
+        let mut clamped = 0;
+        for _ in 0..500 {
+            let mut clamp = FrictionClamp::new(n);
+            let kicks: Vec<([u32; 4], PenaltyImpulse)> = (0..1 + (rnd() * 5.0) as usize)
+                .map(|_| {
+                    let mut v = [0u32; 4];
+                    for j in 0..4 {
+                        v[j] = (rnd() * n as f64) as u32 % n as u32;
+                    }
+                    let c = Closest {
+                        d: 1e-4 * rnd(),
+                        n: DVec3::Z,
+                        coeff: [1.0, -0.3, -0.3, -0.4],
+                    };
+                    // Slow sliding: the kicks mostly stop it (and overshoot
+                    // together where they share a vertex); fast: Coulomb.
+                    let speed = if rnd() < 0.5 { 1e-3 } else { 1.0 };
+                    let vel = [0; 4].map(|_| DVec3::new(rnd() - 0.5, rnd() - 0.5, 0.0) * speed);
+                    let inv = v.map(|i| w[i as usize]);
+                    let k = penalty_kick(1e-3, 1e4 * rnd(), 1e-3, &c, &vel, &inv, 2.0 * rnd());
+                    (v, k.unwrap())
+                })
+                .collect();
+            for (v, k) in &kicks {
+                clamp.add(v, &w, k);
+            }
+            let mut got = vec![DVec3::ZERO; n];
+            let mut limit = vec![0.0f64; n];
+            let mut count = vec![0; n];
+            for (v, k) in &kicks {
+                let s = clamp.scale(v, &w, k);
+                assert!(s > 0.0 && s <= 1.0);
+                clamped += usize::from(s < 1.0);
+                let total: DVec3 = k.friction.iter().map(|f| *f * s).sum();
+                assert!(total.length() <= 1e-12 * k.friction[0].length().max(1e-300));
+                for j in 0..4 {
+                    let i = v[j] as usize;
+                    if w[i] > 0.0 && k.friction[j] != DVec3::ZERO {
+                        got[i] += k.friction[j] * s;
+                        limit[i] = limit[i].max(k.friction[j].length() * k.stop_ratio);
+                        count[i] += 1;
+                    }
+                }
+            }
+            for i in 0..n {
+                assert!(got[i].length() <= limit[i] * (1.0 + 1e-12), "vertex {i}");
+            }
+            for (v, k) in &kicks {
+                let alone = v.iter().all(|&i| count[i as usize] <= 1);
+                if alone {
+                    assert_eq!(clamp.scale(v, &w, k), 1.0);
+                }
+                clamp.clear(v);
+            }
+            assert!(clamp.sum.iter().chain(&clamp.limit).all(|&x| x == 0.0));
+        }
+        assert!(
+            clamped > 50,
+            "the clamp must act in some batches: {clamped}"
+        );
     }
 }
