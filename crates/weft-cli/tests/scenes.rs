@@ -231,3 +231,37 @@ fn twister_small() {
     );
     assert!(ends.abs() < 1e-9, "held ends turned {ends}");
 }
+
+/// Every bundled scene builds at `size` = 300, 2,000 and 10,000 and would
+/// start: its world (METIS partitions, masses, the internal step derived
+/// from both the stiffness and the damping limit, the layer schedule) and
+/// its initial state are valid, and the step is within both explicit
+/// stability limits of its rest system.
+#[test]
+fn every_bundled_scene_builds_at_every_size() {
+    let mut names: Vec<String> = std::fs::read_dir(scene_path(""))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".toml"))
+        .collect();
+    names.sort();
+    assert!(names.len() >= 6, "{names:?}");
+    for name in &names {
+        for size in [300, 2000, 10_000] {
+            let what = format!("{name} at size={size}");
+            let scene = load_scene(&scene_path(name), &[format!("size={size}")])
+                .unwrap_or_else(|e| panic!("{what}: {e}"));
+            let world =
+                weft_par::build_world(&scene.world).unwrap_or_else(|e| panic!("{what}: {e}"));
+            let (h, omega, gamma) = (world.lattice.h_el(), world.omega_max, world.damping_rate);
+            println!("{what}: h_el {h:.3e} s, omega_max {omega:.3e}, damping rate {gamma:.3e}");
+            assert!(h <= 2.0 / omega, "{what}: step {h:e} above 2 / omega_max");
+            assert!(
+                h <= weft_sim::materials::damping_step_limit(omega, gamma),
+                "{what}: step {h:e} above the damping limit"
+            );
+            weft_sim::Engine::new(world, weft_sim::Serial)
+                .unwrap_or_else(|e| panic!("{what}: {e}"));
+        }
+    }
+}

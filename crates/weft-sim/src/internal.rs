@@ -12,7 +12,7 @@ use glam::DVec3;
 use weft_core::{Topology, NONE};
 
 use crate::executor::Executor;
-use crate::materials::{self, ElasticModel, HingeElement, Material, MaterialError, StretchElement};
+use crate::materials::{ElasticModel, HingeElement, Material, MaterialError, StretchElement};
 
 /// One partition's share of the internal stencils.
 #[derive(Clone, Debug, PartialEq)]
@@ -346,20 +346,37 @@ impl InternalForces {
         self.key_ordered().model().max_frequency(rest, mass)
     }
 
-    /// Rejects damping above its explicit stability limit at step `h`
-    /// (`h γ + h² ω² / 2 ≤ 2` with `γ = λ_max(M⁻¹C)` at the rest shape).
-    pub fn check_damping(
-        &self,
-        h: f64,
-        omega_max: f64,
-        rest: &[DVec3],
-        mass: &[f64],
-    ) -> Result<(), MaterialError> {
+    /// `gamma_max = λ_max(M⁻¹C)` (1/s) of the damping operator at the rest
+    /// shape, 0 without damping: with `omega_max` it sets the explicit
+    /// stability limit `h γ + h² ω² / 2 ≤ 2` ([`crate::materials::damping_step_limit`]).
+    pub fn max_damping_rate(&self, rest: &[DVec3], mass: &[f64]) -> f64 {
         if !self.damped {
-            return Ok(());
+            return 0.0;
         }
-        let gamma = self.key_ordered().model().max_damping_rate(rest, mass);
-        materials::check_damping(h, omega_max, gamma)
+        self.key_ordered().model().max_damping_rate(rest, mass)
+    }
+
+    /// The damping rate of material `m`'s elements alone, keeping only its
+    /// stretch damping, only its bend damping, or both (`[stretch, bend,
+    /// both]`), to say which damping of which cloth is too strong. Cloths
+    /// share no vertex, so `M⁻¹C` is block diagonal and
+    /// [`InternalForces::max_damping_rate`] is the largest `both` over the
+    /// materials; scaling both dampings of material `m` by `s` scales its
+    /// rate by exactly `s`.
+    pub fn damping_rates_of(&self, m: usize, rest: &[DVec3], mass: &[f64]) -> [f64; 3] {
+        let rate = |stretch: bool, bend: bool| {
+            let mut k = self.key_ordered();
+            for (j, material) in k.materials.iter_mut().enumerate() {
+                if j != m || !stretch {
+                    material.stretch_damping = 0.0;
+                }
+                if j != m || !bend {
+                    material.bend_damping = 0.0;
+                }
+            }
+            k.model().max_damping_rate(rest, mass)
+        };
+        [rate(true, false), rate(false, true), rate(true, true)]
     }
 }
 

@@ -108,6 +108,9 @@ pub struct World {
     pub layers: ActiveLayers,
     /// Largest angular frequency of the assembled rest system (rad/s).
     pub omega_max: f64,
+    /// Largest damping rate `λ_max(M⁻¹C)` of the rest system (1/s, 0
+    /// without damping); with `omega_max` it bounds the internal step.
+    pub damping_rate: f64,
     /// Friction coefficient of each vertex's object.
     pub vertex_friction: Vec<f64>,
     /// Which partition each triangle and vertex belongs to.
@@ -350,8 +353,12 @@ impl World {
             source: e,
         })?;
 
-        // Internal step: beta * 2 / omega_max of the assembled rest system.
+        // Internal step: beta times the explicit stability limit `2 /
+        // omega_max` of the assembled rest system, and at most
+        // `DAMPING_SAFETY` times its limit with damping (the root of
+        // `h γ + h² ω² / 2 = 2`, `step.rs`).
         let omega_max = internal.max_frequency(&rest_all, &mass);
+        let gamma_max = internal.max_damping_rate(&rest_all, &mass);
         let h_el = match spec.time.internal_step {
             Some(h) if h > 0.0 && h.is_finite() => {
                 // A given step may not exceed the explicit stability limit
@@ -365,6 +372,12 @@ impl World {
                          rad/s); use a step of at most {limit:e} s, or leave time.internal_step \
                          out to derive beta · 2 / omega_max"
                     )));
+                }
+                if h > materials::damping_step_limit(omega_max, gamma_max) {
+                    let cloths: Vec<&ObjectInfo> = objects.iter().filter(|o| o.is_cloth).collect();
+                    return Err(damping_refusal(
+                        h, omega_max, &internal, &rest_all, &mass, &cloths,
+                    ));
                 }
                 h
             }
@@ -380,22 +393,20 @@ impl World {
                         spec.time.beta
                     )));
                 }
-                if omega_max > 0.0 && omega_max.is_finite() {
-                    materials::stable_step(omega_max, spec.time.beta)
-                } else {
+                if !(omega_max > 0.0 && omega_max.is_finite()) {
                     return Err(SimError::Config(
                         "no cloth stiffness to derive the internal step from; set time.internal_step"
                             .into(),
                     ));
                 }
+                let stiff = materials::stable_step(omega_max, spec.time.beta);
+                if gamma_max > 0.0 {
+                    stiff.min(DAMPING_SAFETY * materials::damping_step_limit(omega_max, gamma_max))
+                } else {
+                    stiff
+                }
             }
         };
-        internal
-            .check_damping(h_el, omega_max, &rest_all, &mass)
-            .map_err(|e| SimError::Material {
-                object: "(cloth damping)".into(),
-                source: e,
-            })?;
         let lattice = Lattice::new(h_el, spec.time.steps_per_window);
 
         // Contact thickness: at most half the smallest cloth triangle altitude.
@@ -477,6 +488,7 @@ impl World {
             window_index: 0,
             layers: ActiveLayers::default(),
             omega_max,
+            damping_rate: gamma_max,
             vertex_friction,
             partitioning,
         };
@@ -511,6 +523,67 @@ impl World {
     pub fn time(&self) -> f64 {
         self.lattice.seconds(self.tick)
     }
+}
+
+/// The fraction of the damped rest system's explicit stability limit a
+/// derived internal step may use. `beta` (≤ 0.5) leaves room for StVK's
+/// stiffening, which is cubic in the stretch; the strain-rate damping grows
+/// only with `|F|²` (1.44× at 20 % stretch), so half its rest limit leaves
+/// room for stretches up to about 40 %.
+const DAMPING_SAFETY: f64 = 0.5;
+
+/// The error for a given internal step `h` above the damping's explicit
+/// stability limit: names the cloth whose damping is too strong, which of
+/// its two dampings contributes most, and the largest values that pass at
+/// `h` (both scaled by one factor: a cloth's damping rate scales with it).
+///
+/// The limit `h γ + h² ω² / 2 ≤ 2` allows a damping rate up to
+/// `γ_allowed = (2 − h² ω² / 2) / h` (positive: `h ≤ 2 / ω` was checked).
+/// Cloths share no vertex, so each cloth's own rate `γ_o` must stay below
+/// it; the worst one is named.
+fn damping_refusal(
+    h: f64,
+    omega_max: f64,
+    internal: &InternalForces,
+    rest: &[DVec3],
+    mass: &[f64],
+    cloths: &[&ObjectInfo],
+) -> SimError {
+    let allowed = (2.0 - 0.5 * h * h * omega_max * omega_max) / h;
+    let (m, rates) = (0..internal.materials.len())
+        .map(|m| (m, internal.damping_rates_of(m, rest, mass)))
+        .max_by(|a, b| a.1[2].total_cmp(&b.1[2]))
+        .expect("damping implies a cloth");
+    let [stretch_rate, bend_rate, rate] = rates;
+    let material = &internal.materials[m];
+    let scale = allowed / rate;
+    let culprit = if stretch_rate >= bend_rate {
+        "stretch_damping"
+    } else {
+        "bend_damping"
+    };
+    // Three significant digits, rounded down: the suggested values pass.
+    let down = |x: f64| {
+        if x > 0.0 {
+            let e = libm::pow(10.0, libm::floor(libm::log10(x)) - 2.0);
+            libm::floor(x / e) * e
+        } else {
+            0.0
+        }
+    };
+    let name = cloths.get(m).map_or("?", |o| o.name.as_str());
+    SimError::Config(format!(
+        "cloth '{name}': its damping is too strong for the internal step {h:.4e} s \
+         (time.internal_step): mostly its {culprit} (stretch_damping = {:e} s, \
+         bend_damping = {:e} J s give a damping rate of {rate:.4e} 1/s, the step allows \
+         {allowed:.4e} 1/s). At this step the largest values that pass are \
+         stretch_damping = {:.2e} s and bend_damping = {:.2e} J s (both scaled by {scale:.3}); or \
+         leave time.internal_step out, and the step is derived from the damping limit too",
+        material.stretch_damping,
+        material.bend_damping,
+        down(material.stretch_damping * scale),
+        down(material.bend_damping * scale),
+    ))
 }
 
 /// Validates a script's motion for `n` vertices (axis normalized).

@@ -27,7 +27,7 @@ use weft_geom::shapes::{cuboid, grid, sphere};
 use weft_sim::broad::BroadPhase;
 use weft_sim::kinematics::Motion;
 use weft_sim::layers::{penalty_kick, LayerSchedule};
-use weft_sim::materials::{Material, MaterialError};
+use weft_sim::materials::{damping_step_limit, Material, MaterialError};
 use weft_sim::trajectory::Trajectories;
 use weft_sim::{
     ContactConfig, Engine, LimitsConfig, ObjectKind, ObjectSpec, PinSpec, Serial, SimError,
@@ -1650,6 +1650,84 @@ fn poisson_ratio_of_one_half_or_more_is_refused() {
         }
         assert!(msg.contains("poisson_ratio") && msg.contains("0.5"));
     }
+}
+
+/// Two 3×3 cloths side by side; the second ("damped") carries `damping`
+/// times the stiffness-proportional damping at the first one's rest limit.
+fn two_cloths_damped(damping: [f64; 2]) -> WorldSpec {
+    let sheet = |x: f64| {
+        grid(
+            DVec3::new(x, 0.0, 0.01),
+            DVec3::X,
+            DVec3::Y,
+            [0.02, 0.02],
+            [5, 5],
+        )
+    };
+    let mut damped = cloth("damped", sheet(0.05), DVec3::ZERO);
+    if let ObjectKind::Cloth { material, .. } = &mut damped.kind {
+        material.stretch_damping = damping[0];
+        material.bend_damping = damping[1];
+    }
+    spec(
+        vec![cloth("plain", sheet(0.0), DVec3::ZERO), damped],
+        DVec3::ZERO,
+        10,
+    )
+}
+
+/// A derived internal step respects the damping's explicit stability limit
+/// too: strong damping shortens the step (to half the damped limit) instead
+/// of refusing the scene; light damping leaves `beta · 2 / omega_max`.
+#[test]
+fn derived_internal_step_respects_the_damping_limit() {
+    let calm = World::build(&two_cloths_damped([0.0, 0.0])).unwrap();
+    assert_eq!(calm.damping_rate, 0.0);
+    assert_eq!(calm.lattice.h_el(), 0.3 * 2.0 / calm.omega_max);
+    let w = World::build(&two_cloths_damped([1e-3, 1e-9])).unwrap();
+    let limit = damping_step_limit(w.omega_max, w.damping_rate);
+    println!(
+        "h_el {:.4e} s, damped limit {limit:.4e} s, undamped limit {:.4e} s",
+        w.lattice.h_el(),
+        2.0 / w.omega_max
+    );
+    assert!(
+        0.5 * limit < 0.3 * 2.0 / w.omega_max,
+        "the damping must bind"
+    );
+    assert_eq!(w.lattice.h_el(), 0.5 * limit);
+    let light = World::build(&two_cloths_damped([1e-6, 1e-12])).unwrap();
+    assert!(light.damping_rate > 0.0);
+    assert_eq!(light.lattice.h_el(), 0.3 * 2.0 / light.omega_max);
+}
+
+/// A given internal step above the damping limit is refused, naming the
+/// cloth, its damping at fault and the largest values that pass at that
+/// step — which do pass, while 2 % more does not.
+#[test]
+fn given_step_with_too_much_damping_names_the_cloth_and_the_values_that_pass() {
+    let probe = World::build(&two_cloths_damped([0.0, 0.0])).unwrap();
+    let mut s = two_cloths_damped([1e-3, 1e-9]);
+    s.time.internal_step = Some(0.9 / probe.omega_max);
+    let msg = build_err(&s).to_string();
+    println!("{msg}");
+    assert!(msg.contains("cloth 'damped'"), "{msg}");
+    assert!(msg.contains("mostly its stretch_damping"), "{msg}");
+    assert!(!msg.contains("plain"), "{msg}");
+    let value = |key: &str| -> f64 {
+        let at = msg.find(&format!("largest values that pass are")).unwrap();
+        let rest = &msg[at..];
+        let from = rest.find(&format!("{key} = ")).unwrap() + key.len() + 3;
+        rest[from..].split(' ').next().unwrap().parse().unwrap()
+    };
+    let (stretch, bend) = (value("stretch_damping"), value("bend_damping"));
+    assert!(stretch > 0.0 && stretch < 1e-3 && bend > 0.0 && bend < 1e-9);
+    let mut ok = s.clone();
+    ok.objects[1] = two_cloths_damped([stretch, bend]).objects[1].clone();
+    World::build(&ok).expect("the suggested values pass");
+    let mut over = s.clone();
+    over.objects[1] = two_cloths_damped([1.02 * stretch, 1.02 * bend]).objects[1].clone();
+    assert!(build_err(&over).to_string().contains("cloth 'damped'"));
 }
 
 // ------------------------------------------------- 5. penalty kick = -h dV/dx

@@ -6,8 +6,8 @@ use glam::{DQuat, DVec3};
 use std::f64::consts::PI;
 use weft_core::Topology;
 use weft_sim::materials::{
-    check_damping, damping_step_limit, dihedral_angle, lumped_masses, stable_step, HingeElement,
-    Material, MaterialError, StretchElement,
+    damping_step_limit, dihedral_angle, lumped_masses, stable_step, HingeElement, Material,
+    MaterialError, StretchElement,
 };
 use weft_testkit::{assert_gradient, check_gradient, Rng};
 
@@ -719,13 +719,6 @@ fn damping_step_limit_separates_stable_from_unstable() {
     );
     let limit = damping_step_limit(omega, gamma);
     assert!(limit < 2.0 / omega);
-    assert!(check_damping(0.99 * limit, omega, gamma).is_ok());
-    let err = check_damping(1.01 * limit, omega, gamma).unwrap_err();
-    let msg = err.to_string();
-    assert!(
-        msg.contains("stability limit") && msg.contains("stretch_damping"),
-        "{msg}"
-    );
 
     // Linear dynamics in scaled coordinates: A = M^-1/2 K M^-1/2, C = alpha A.
     let a = dense_scaled_stiffness(&model, &rest, &mass);

@@ -48,7 +48,7 @@ pub mod stretch;
 pub use assembly::ElasticModel;
 pub use bend::{dihedral_angle, HingeElement};
 pub use mass::{gravity_gradient, lumped_masses};
-pub use step::{check_damping, damping_step_limit, stable_step};
+pub use step::{damping_step_limit, stable_step};
 pub use stretch::StretchElement;
 
 use serde::{Deserialize, Serialize};
@@ -91,18 +91,6 @@ pub enum MaterialError {
         edge: [u32; 2],
         wings: [u32; 2],
         what: &'static str,
-    },
-    /// Damping too strong for the explicit step.
-    #[error(
-        "damping is above its explicit stability limit: the step {step:e} s exceeds the largest \
-         stable step {limit:e} s for omega_max = {omega_max:e} rad/s and damping rate \
-         gamma_max = {gamma_max:e} 1/s; lower stretch_damping / bend_damping (or the step)"
-    )]
-    DampingUnstable {
-        step: f64,
-        limit: f64,
-        omega_max: f64,
-        gamma_max: f64,
     },
     /// Element arrays that do not fit together (a caller bug).
     #[error("inconsistent material input: {0}")]

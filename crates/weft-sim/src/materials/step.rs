@@ -28,7 +28,7 @@
 //! damped one, which is the worst case whenever those coincide (the usual case:
 //! both are the shortest-wavelength membrane modes).
 
-use super::{ElasticModel, MaterialError};
+use super::ElasticModel;
 use glam::DVec3;
 
 /// Most Lanczos steps.
@@ -59,21 +59,6 @@ pub fn damping_step_limit(omega_max: f64, gamma_max: f64) -> f64 {
         4.0 / den
     } else {
         f64::INFINITY
-    }
-}
-
-/// Rejects damping above its explicit stability limit for the internal step `step`.
-pub fn check_damping(step: f64, omega_max: f64, gamma_max: f64) -> Result<(), MaterialError> {
-    let limit = damping_step_limit(omega_max, gamma_max);
-    if step <= limit {
-        Ok(())
-    } else {
-        Err(MaterialError::DampingUnstable {
-            step,
-            limit,
-            omega_max,
-            gamma_max,
-        })
     }
 }
 
@@ -111,7 +96,7 @@ impl ElasticModel<'_> {
         model_max_frequency(rest, masses, self)
     }
     /// `gamma_max = λ_max(M^-1 C)` (1/s) of the damping operator at the rest
-    /// shape, for [`damping_step_limit`] / [`check_damping`].
+    /// shape, for [`damping_step_limit`].
     pub fn max_damping_rate(&self, rest: &[DVec3], masses: &[f64]) -> f64 {
         model_max_damping_rate(rest, masses, self)
     }
