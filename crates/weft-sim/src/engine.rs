@@ -134,10 +134,6 @@ fn sleep(
     (awake_at, room)
 }
 
-/// Passes of one window that may end in a non-finite value (each rolled back
-/// with more layers) before the run stops with [`SimError::NonFinite`].
-const MAX_BLOWN_UP_PASSES: u32 = 3;
-
 /// The state restored on rollback.
 #[derive(Clone, Debug)]
 struct Snapshot {
@@ -208,6 +204,13 @@ impl Workspace {
         self.acc.fill(DVec3::ZERO);
         self.is_touched.fill(false);
         self.touched.clear();
+    }
+
+    /// No impulse of an earlier batch is left (what every batch starts from).
+    fn accumulators_are_clear(&self) -> bool {
+        self.touched.is_empty()
+            && !self.is_touched.contains(&true)
+            && self.acc.iter().all(|a| *a == DVec3::ZERO)
     }
 }
 
@@ -299,6 +302,13 @@ impl<E: Executor> Engine<E> {
         Ok(engine)
     }
 
+    /// Sets the memory budget of a window's trajectory breakpoints (bytes),
+    /// for example to go on after [`SimError::TrajectoryBudget`].
+    pub fn set_trajectory_budget(&mut self, bytes: usize) {
+        self.world.limits.trajectory_budget_bytes = bytes;
+        self.traj.set_budget(bytes);
+    }
+
     /// The executor.
     pub fn executor(&self) -> &E {
         &self.exec
@@ -380,8 +390,23 @@ impl<E: Executor> Engine<E> {
         Ok(())
     }
 
+    /// Refuses a start in which two triangles intersect (checked first, so
+    /// that crossing geometry is called so) or a stencil's primitives are
+    /// within the separation floor.
     fn check_initial_state(&mut self) -> Result<(), SimError> {
         let w = &self.world;
+        let hits = weft_geom::intersections::mesh_self_intersections(&w.x, &w.triangles);
+        let dynamic = |f: u32| {
+            w.triangles[f as usize]
+                .iter()
+                .any(|&i| w.inv_mass[i as usize] > 0.0)
+        };
+        if let Some(&(a, b)) = hits.iter().find(|&&(a, b)| dynamic(a) || dynamic(b)) {
+            return Err(SimError::InitialIntersection {
+                a: w.triangle_place(a),
+                b: w.triangle_place(b),
+            });
+        }
         self.traj.begin(w.tick, &w.x);
         let keys = self.ws.broad.candidates_on(
             &self.exec,
@@ -397,33 +422,13 @@ impl<E: Executor> Engine<E> {
                 return Err(SimError::InitialContact {
                     kind: kind_name(key.kind),
                     key,
-                    places: self.places(&key),
+                    pair: w.describe_stencil(&key),
                     distance: c.d,
                     floor: w.schedule.eta_inf,
                 });
             }
         }
-        let hits = weft_geom::intersections::mesh_self_intersections(&w.x, &w.triangles);
-        let dynamic = |f: u32| {
-            w.triangles[f as usize]
-                .iter()
-                .any(|&i| w.inv_mass[i as usize] > 0.0)
-        };
-        if let Some(&(a, b)) = hits.iter().find(|&&(a, b)| dynamic(a) || dynamic(b)) {
-            return Err(SimError::InitialIntersection {
-                a: w.triangle_place(a),
-                b: w.triangle_place(b),
-            });
-        }
         Ok(())
-    }
-
-    fn places(&self, key: &StencilKey) -> String {
-        key.v
-            .iter()
-            .map(|&i| self.world.place(i).to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
     }
 
     /// Position of vertex `i` at tick `t` (drift without writing).
@@ -505,12 +510,27 @@ impl<E: Executor> Engine<E> {
             };
             drop(narrow_span);
             stages.narrow += clock.elapsed().as_secs_f64();
-            if reported.is_empty() {
-                if let Some(e) = counts.truncated.take() {
-                    // Blew up with no stencil to blame: a real instability.
+            // A pass that blew up is a detection too: the stencils near the
+            // vertex that went non-finite (typically pushed through too few
+            // layers) get more layers, like the reported ones, bounded by
+            // the rollback cap. With no stencil near it the blow-up is a
+            // real instability and the run stops with it.
+            let mut reported = reported;
+            if let Some(e) = counts.truncated.take() {
+                let &SimError::NonFinite { vertex, .. } = &e else {
+                    unreachable!("a pass is truncated by a non-finite value only")
+                };
+                let near = self.stencils_near(vertex, &candidates);
+                if reported.is_empty() && near.is_empty() {
                     snap.restore(&mut self.world);
                     return Err(e);
                 }
+                reported.extend(near);
+                reported.sort_unstable();
+                reported.dedup();
+                blown_up += 1;
+            }
+            if reported.is_empty() {
                 let clock = Instant::now();
                 let _commit_span = trace::span("commit");
                 let retired = match self.commit(&candidates) {
@@ -543,15 +563,6 @@ impl<E: Executor> Engine<E> {
             confirmed += reported.len() as u64;
             // Roll back: restore the state, keep (and extend) the layers.
             snap.restore(&mut self.world);
-            // A pass that blew up is rolled back like any other (its
-            // stencils may simply have had too few layers), but one that
-            // keeps blowing up is a real instability: stop with the error.
-            if let Some(e) = counts.truncated.take() {
-                blown_up += 1;
-                if blown_up >= MAX_BLOWN_UP_PASSES {
-                    return Err(e); // the snapshot is already restored
-                }
-            }
             let extra = self.world.contact.layers_per_detection;
             for key in &reported {
                 self.world.layers.deepen(*key, extra);
@@ -566,18 +577,41 @@ impl<E: Executor> Engine<E> {
             }
             if rollbacks > self.world.contact.max_rollbacks {
                 let key = reported[reported.len() - 1];
-                let p = self.world.x[key.v[0] as usize];
+                let w = &self.world;
                 return Err(SimError::RollbackCap {
-                    time: self.world.lattice.seconds(t0),
-                    cap: self.world.contact.max_rollbacks,
+                    time: w.lattice.seconds(t0),
+                    cap: w.contact.max_rollbacks,
                     kind: kind_name(key.kind),
                     key,
-                    places: self.places(&key),
-                    position: p.to_array(),
-                    depth: self.world.layers.depth(&key),
+                    pair: w.describe_stencil(&key),
+                    position: w.x[key.v[0] as usize].to_array(),
+                    depth: w.layers.depth(&key),
+                    blown_up,
                 });
             }
         }
+    }
+
+    /// The stencils near vertex `i` that went non-finite in a pass: the
+    /// active ones and this pass's candidates with a vertex in `i`'s ring
+    /// (`i` and the vertices of its triangles), in key order.
+    fn stencils_near(&self, i: u32, candidates: &[StencilKey]) -> Vec<StencilKey> {
+        let w = &self.world;
+        let mut ring: Vec<u32> = vec![i];
+        for &f in w.topology.faces_of_vertex(i) {
+            ring.extend_from_slice(&w.triangles[f as usize]);
+        }
+        ring.sort_unstable();
+        ring.dedup();
+        let touches = |k: &&StencilKey| k.v.iter().any(|v| ring.binary_search(v).is_ok());
+        let mut near: Vec<StencilKey> = (w.layers.stencils.keys())
+            .chain(candidates)
+            .filter(touches)
+            .copied()
+            .collect();
+        near.sort_unstable();
+        near.dedup();
+        near
     }
 
     /// Runs every event in `[t0, t1)` and drifts all vertices to `t1`,
@@ -587,6 +621,10 @@ impl<E: Executor> Engine<E> {
             min_separation: f64::INFINITY,
             ..Default::default()
         };
+        debug_assert!(
+            self.ws.accumulators_are_clear(),
+            "impulses of an unfinished batch survived into a new pass"
+        );
         self.traj.begin(t0, &self.world.x);
         let active: Vec<(StencilKey, u32)> = self
             .world
@@ -662,7 +700,13 @@ impl<E: Executor> Engine<E> {
                     end = t;
                     break;
                 }
-                Err(e) => return Err(e),
+                Err(e) => {
+                    // A budget or communication error: the window is
+                    // abandoned; no impulse of the batch may reach a later
+                    // pass (the caller may raise the budget and step again).
+                    self.ws.clear_accumulators();
+                    return Err(e);
+                }
             }
         }
         // Drift everything to the end of the pass (the window end unless the
@@ -941,10 +985,10 @@ impl<E: Executor> Engine<E> {
         if internal {
             return self.apply_internal(t);
         }
-        // A penalty-only batch: the touched vertices, in order.
+        // A penalty-only batch: the touched vertices, in order. (On an
+        // error the caller clears what is left of the batch.)
         let world = &mut self.world;
-        let touched = std::mem::take(&mut ws.touched);
-        for &i in &touched {
+        for &i in &ws.touched {
             let i = i as usize;
             let v_old = world.v[i];
             let x = Self::pos_at(world, i, t);
@@ -953,9 +997,9 @@ impl<E: Executor> Engine<E> {
             ws.is_touched[i] = false;
             if v_new != v_old {
                 if !(x.is_finite() && v_new.is_finite()) {
-                    ws.touched = touched;
                     return Err(SimError::NonFinite {
                         place: world.place(i as u32),
+                        vertex: i as u32,
                         time: world.lattice.seconds(t),
                     });
                 }
@@ -968,7 +1012,6 @@ impl<E: Executor> Engine<E> {
                     .map_err(|e| budget_error(world, window_start, e))?;
             }
         }
-        ws.touched = touched;
         ws.touched.clear();
         Ok(())
     }
@@ -1052,6 +1095,7 @@ impl<E: Executor> Engine<E> {
         if let Some(i) = bad {
             return Err(SimError::NonFinite {
                 place: world.place(i as u32),
+                vertex: i as u32,
                 time: world.lattice.seconds(t),
             });
         }

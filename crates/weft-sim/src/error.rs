@@ -36,14 +36,24 @@ pub enum SimError {
     },
     #[error("invalid setting: {0}")]
     Config(String),
+    /// Two primitives of a stencil closer than the separation floor at the
+    /// start (`distance` 0: they touch or cross).
     #[error(
-        "initial state: {kind} stencil {key:?} (vertices {places}) is {distance:.3e} m apart, \
-         closer than the separation floor eta_inf = {floor:.3e} m; move the objects apart"
+        "initial state: {pair} {}; weft cannot start from touching or nearly touching \
+         geometry — move the objects apart{}",
+        if *distance > 0.0 {
+            format!("are {distance:.3e} m apart, closer than the separation floor of {floor:.3e} m \
+                     (contact.floor × the contact thickness)")
+        } else {
+            "touch or cross (0 m apart)".to_string()
+        },
+        if *distance > 0.0 { " (or lower contact.floor)" } else { "" }
     )]
     InitialContact {
         kind: &'static str,
         key: StencilKey,
-        places: String,
+        /// The two primitives, by object and object-local vertex index.
+        pair: String,
         distance: f64,
         floor: f64,
     },
@@ -53,19 +63,32 @@ pub enum SimError {
     )]
     InitialIntersection { a: Place, b: Place },
     #[error(
-        "window starting at t = {time:.6} s needed more than {cap} rollbacks; the last stencil \
-         detected was {kind} {key:?} (vertices {places}) near {position:?} at depth {depth}. \
-         The window's start state was kept for a reproduction. Lower the internal step or \
-         the window length, or raise contact.max_rollbacks"
+        "window starting at t = {time:.6} s needed more than {cap} rollbacks; the last \
+         stencil detected was {pair} near {position:?} at layer depth {depth}{}. The window's \
+         start state was kept for a reproduction. {}",
+        if *blown_up > 0 {
+            format!("; {blown_up} of the window's passes blew up (a non-finite position or velocity)")
+        } else {
+            String::new()
+        },
+        if *blown_up > 0 {
+            "Raise contact.layers_per_detection (more layers per detection for a fast impact) \
+             or contact.max_rollbacks, or lower the internal step"
+        } else {
+            "Lower the internal step or the window length, or raise contact.max_rollbacks"
+        }
     )]
     RollbackCap {
         time: f64,
         cap: u32,
         kind: &'static str,
         key: StencilKey,
-        places: String,
+        /// The stencil's two primitives, by object and object-local vertex index.
+        pair: String,
         position: [f64; 3],
         depth: u32,
+        /// Passes of the window that ended in a non-finite value.
+        blown_up: u32,
     },
     #[error(
         "window starting at t = {time:.6} s needs {breakpoints} trajectory breakpoints, more than \
@@ -77,11 +100,19 @@ pub enum SimError {
         breakpoints: usize,
         budget_bytes: usize,
     },
+    /// A value became non-finite with no contact near it to add layers to:
+    /// a real instability.
     #[error(
-        "vertex {place} reached a non-finite position or velocity at t = {time:.6} s; the \
-         simulation became unstable — lower the internal step (time.beta or time.internal_step)"
+        "vertex {place} reached a non-finite position or velocity at t = {time:.6} s, with no \
+         contact near it; the simulation became unstable — lower the internal step (time.beta \
+         or time.internal_step)"
     )]
-    NonFinite { place: Place, time: f64 },
+    NonFinite {
+        place: Place,
+        /// The vertex's global index (objects concatenated in scene order).
+        vertex: u32,
+        time: f64,
+    },
     /// The run was asked to stop (a signal or a deadline); the engine is back
     /// at the start of the window it was in, which is the last committed state.
     #[error("interrupted in the window starting at t = {time:.6} s")]

@@ -119,6 +119,11 @@ impl Trajectories {
         }
     }
 
+    /// Sets the budget (bytes) checked from the next breakpoint on.
+    pub fn set_budget(&mut self, budget_bytes: usize) {
+        self.budget = budget_bytes;
+    }
+
     /// Stores from now on only the breakpoints of the vertices `holder`
     /// gives to rank `me` (one entry per vertex); frees the others'.
     pub fn hold_only(&mut self, holder: Vec<u32>, me: u32) {

@@ -7,7 +7,7 @@
 use std::ops::Range;
 
 use glam::DVec3;
-use weft_core::{Topology, TriMesh};
+use weft_core::{StencilKey, StencilKind, Topology, TriMesh};
 
 use crate::clock::{Lattice, Tick};
 use crate::config::{ContactConfig, LimitsConfig, TimeConfig};
@@ -512,6 +512,34 @@ impl World {
     /// Object name and object-local index of vertex `i`.
     pub fn place(&self, i: u32) -> Place {
         place_of(&self.objects, i)
+    }
+
+    /// A stencil's two primitives for messages, by object and object-local
+    /// vertex index: "vertex cloth #12 and triangle floor #3, #4, #5", or
+    /// "edge a #0–#1 and edge b #7–#8".
+    pub fn describe_stencil(&self, key: &StencilKey) -> String {
+        let group = |vs: &[u32], sep: &str| -> String {
+            let places: Vec<Place> = vs.iter().map(|&i| self.place(i)).collect();
+            if places.iter().all(|p| p.object == places[0].object) {
+                let locals: Vec<String> = places.iter().map(|p| format!("#{}", p.local)).collect();
+                format!("{} {}", places[0].object, locals.join(sep))
+            } else {
+                let all: Vec<String> = places.iter().map(Place::to_string).collect();
+                all.join(sep)
+            }
+        };
+        match key.kind {
+            StencilKind::VertexFace => format!(
+                "vertex {} and triangle {}",
+                self.place(key.v[0]),
+                group(&key.v[1..], ", ")
+            ),
+            StencilKind::EdgeEdge => format!(
+                "edge {} and edge {}",
+                group(&key.v[..2], "–"),
+                group(&key.v[2..], "–")
+            ),
+        }
     }
 
     /// Object name and object-local index of triangle `f`.

@@ -9,12 +9,6 @@
 //! * the broad phase against a brute-force, densely time-sampled search;
 //! * bad input: every class is refused with an error naming the problem;
 //! * the penalty kick is `-h dV_l/dx` (finite differences).
-//!
-//! Tests marked `ENGINE BUG (fails)` demonstrate engine defects and fail until
-//! the engine is fixed: `grid_fired_at_100_m_s_bounces_off_a_box` (a
-//! speculative pass's blow-up is reported as `NonFinite` instead of being
-//! rolled back) and `trajectory_budget_error_keeps_the_window_start_state`
-//! (the error leaves the world mid-window; a retry panics).
 
 use std::collections::BTreeSet;
 
@@ -508,54 +502,66 @@ fn grid_bullet() -> (TriMesh, TriMesh) {
     (target, g)
 }
 
-/// ENGINE BUG (fails): with the default 5 layers per detection, the third pass
-/// of the first contact window (depth 10 of ~100 needed) lets the cloth tunnel
-/// into the box; the stretched cloth blows up and `step_window` returns
-/// `SimError::NonFinite` ("lower the internal step") from a speculative pass
-/// that the narrow phase would have rolled back. See
-/// `grid_fired_at_100_m_s_with_20_layers_per_detection_bounces`.
+/// A 100 m/s impact with the default 5 layers per detection: the first
+/// contact window needs a depth of about 100, and its speculative passes
+/// with too few layers push the cloth through and blow up. A blown-up pass
+/// is a detection like any other (the stencils near the blow-up get more
+/// layers, bounded by the rollback cap), so the run must go on to the end:
+/// every window commits with every invariant held, nothing goes through the
+/// box, and the cloth bounces.
 #[test]
 fn grid_fired_at_100_m_s_with_default_layers_never_tunnels() {
-    // With 5 layers per detection this impact makes speculative passes blow
-    // up (the cloth is pushed through too few layers and explodes). Such a
-    // pass is rolled back with more layers; if it keeps blowing up the run
-    // stops with `NonFinite`, the world back at the window's start — it
-    // never commits a state in which the cloth went through.
     let (target, g) = grid_bullet();
     let spec = bullet_scene(target, g, 100.0);
     let mut e = engine(&spec);
     let cloth = object_vertices(&e, 1);
-    for _ in 0..15 {
-        let (x0, v0, tau0, tick0) = (
-            e.world.x.clone(),
-            e.world.v.clone(),
-            e.world.tau.clone(),
-            e.world.tick,
-        );
+    let sum = run_checked(&mut e, 15, |e, _| {
+        for i in cloth.clone() {
+            assert!(e.world.x[i].z > 0.0, "vertex {i} went through the box");
+        }
+    });
+    print_summary("grid->box (L = 5)", &e, &sum);
+    let vz: f64 = cloth.clone().map(|i| e.world.v[i].z).sum::<f64>() / cloth.len() as f64;
+    println!("grid->box (L = 5): final mean vz {vz:.2} m/s");
+    assert!(sum.max_depth >= 20, "depth {}", sum.max_depth);
+    assert!(vz > 50.0, "did not bounce: vz = {vz}");
+}
+
+/// The same impact with room for only 4 rollbacks: its passes blow up, and
+/// past the cap the error names the stencil, says that passes blew up and
+/// advises more layers per detection — not a smaller internal step — with
+/// the world back at the window start.
+#[test]
+fn blown_up_passes_past_the_rollback_cap_name_the_stencil() {
+    let (target, g) = grid_bullet();
+    let mut spec = bullet_scene(target, g, 100.0);
+    spec.contact.max_rollbacks = 4;
+    let mut e = engine(&spec);
+    for _ in 0..5 {
+        let x = e.world.x.clone();
         match e.step_window() {
-            Ok(_) => {
-                check_window_end(&e);
-                for i in cloth.clone() {
-                    assert!(e.world.x[i].z > 0.0, "vertex {i} went through the box");
-                }
-            }
-            Err(SimError::NonFinite { place, .. }) => {
-                assert_eq!(place.object, "bullet");
-                assert_eq!((e.world.x.clone(), e.world.v.clone()), (x0, v0));
-                assert_eq!((e.world.tau.clone(), e.world.tick), (tau0, tick0));
-                println!("grid->box (L = 5): stopped cleanly after repeated blow-ups");
+            Ok(_) => continue,
+            Err(err) => {
+                let msg = err.to_string();
+                println!("{msg}");
+                let SimError::RollbackCap { blown_up, pair, .. } = err else {
+                    panic!("wrong error: {msg}")
+                };
+                assert!(blown_up >= 1, "{msg}");
+                assert!(pair.contains("bullet #"), "{pair}");
+                assert!(msg.contains("blew up") && msg.contains("contact.layers_per_detection"));
+                assert_eq!(e.world.x, x, "x is not the window start state");
                 return;
             }
-            Err(other) => panic!("unexpected error: {other}"),
         }
     }
+    panic!("4 rollbacks were enough for a 100 m/s impact with 5 layers per detection");
 }
 
 /// The same 100 m/s impact as `grid_fired_at_100_m_s_with_default_layers_never_tunnels`, with
 /// 20 layers per detection instead of 5: it commits every window (the first
-/// one at depth ~100), bounces and keeps every invariant. Evidence that the
-/// `NonFinite` error of the default run comes from a speculative pass that
-/// had too few layers and would have been rolled back.
+/// one at depth ~100), bounces and keeps every invariant, with fewer
+/// rollbacks than the default.
 #[test]
 fn grid_fired_at_100_m_s_with_20_layers_per_detection_bounces() {
     let (target, g) = grid_bullet();
@@ -849,12 +855,10 @@ fn stacked_parallel_sheets_never_report_a_separation_below_the_floor() {
     print_summary("stacked sheets", &e, &sum);
 }
 
-/// ENGINE BUG (fails): a `TrajectoryBudget` error in the middle of a window
-/// leaves the world mid-window (some `x`, `tau` advanced, `tick` still at the
-/// window start), unlike `RollbackCap`, which restores the window start. A
-/// second `step_window` then computes `t - tau` with `tau > t` in
-/// `Engine::pos_at` (u64 underflow: a panic with overflow checks, garbage
-/// without).
+/// A `TrajectoryBudget` error in the middle of a window leaves the world at
+/// the window start, like `RollbackCap` (it once left some `x`, `tau`
+/// advanced, and a second `step_window` underflowed `t - tau`), and a
+/// second `step_window` fails the same way without a panic.
 #[test]
 fn trajectory_budget_error_keeps_the_window_start_state() {
     let mut s = bullet_scene(big_triangle(), small_triangle(0.004), 1.0);
@@ -1225,7 +1229,7 @@ fn primitives_closer_than_the_floor_are_refused_by_name() {
             let SimError::InitialContact {
                 kind,
                 key,
-                places,
+                pair,
                 distance,
                 floor,
             } = e
@@ -1234,12 +1238,16 @@ fn primitives_closer_than_the_floor_are_refused_by_name() {
             };
             assert_eq!(kind, "vertex-face");
             assert_eq!(key, StencilKey::vertex_face(4, [0, 1, 2]));
-            assert!(
-                places.contains("cloth #1") && places.contains("floor #0"),
-                "{places}"
-            );
+            assert_eq!(pair, "vertex cloth #1 and triangle floor #0, #1, #2");
             assert!((distance - 2e-5).abs() < 1e-12 && floor == 1e-4);
-            assert!(msg.contains("cloth #1") && msg.contains("eta_inf"));
+            assert!(
+                msg.contains(&pair) && msg.contains("contact.floor"),
+                "{msg}"
+            );
+            assert!(
+                !msg.contains("StencilKey") && !msg.contains("eta_inf"),
+                "{msg}"
+            );
         }
         Err(e) => panic!("wrong error: {e}"),
         Ok(_) => panic!("contact closer than the floor accepted"),
@@ -1264,15 +1272,12 @@ fn primitives_closer_than_the_floor_are_refused_by_name() {
     let s = two_objects_spec(cloth("a", a, DVec3::ZERO), cloth("b", b, DVec3::ZERO));
     match Engine::new(World::build(&s).unwrap(), Serial) {
         Err(SimError::InitialContact {
-            kind, key, places, ..
+            kind, key, pair, ..
         }) => {
-            println!("EE: {kind} {key:?} {places}");
+            println!("EE: {kind} {key:?} {pair}");
             assert_eq!(kind, "edge-edge");
             assert_eq!(key, StencilKey::edge_edge([0, 1], [3, 4]));
-            assert!(
-                places.contains("a #0") && places.contains("b #1"),
-                "{places}"
-            );
+            assert_eq!(pair, "edge a #0–#1 and edge b #0–#1");
         }
         Err(e) => panic!("wrong error: {e}"),
         Ok(_) => panic!("EE contact closer than the floor accepted"),
@@ -1301,7 +1306,7 @@ fn rollback_cap_names_the_stencil_and_keeps_the_window_start() {
                 let SimError::RollbackCap {
                     cap,
                     key,
-                    places,
+                    pair,
                     depth,
                     kind,
                     ..
@@ -1312,14 +1317,16 @@ fn rollback_cap_names_the_stencil_and_keeps_the_window_start() {
                 assert_eq!(cap, 1);
                 // The stencil involves the bullet (vertices 3..6) and the target.
                 assert!(key.v.iter().any(|&i| i >= 3), "{key:?}");
-                assert!(places.contains("bullet #"), "{places}");
+                assert!(pair.contains("bullet #"), "{pair}");
+                assert!(msg.contains(&pair) && !msg.contains("StencilKey"), "{msg}");
                 assert!(depth >= 2, "the error names the depth reached: {depth}");
                 assert_eq!(
                     e.world.layers, layers,
                     "the active layers are the committed ones (a checkpoint of this state \
                      resumes bit-identically)"
                 );
-                assert!(msg.contains(kind) && msg.contains("max_rollbacks"));
+                assert!(msg.contains("max_rollbacks"), "{msg}");
+                assert!(kind == "vertex-face" || kind == "edge-edge");
                 assert_eq!(e.world.x, x, "x is not the window start state");
                 assert_eq!(e.world.v, v, "v is not the window start state");
                 assert_eq!(e.world.tau, tau, "tau is not the window start state");
@@ -1357,6 +1364,73 @@ fn too_small_trajectory_budget_is_reported() {
         Err(err) => panic!("wrong error: {err}"),
         Ok(_) => panic!("a budget of 7 breakpoints was enough for a window"),
     }
+}
+
+/// A budget error can stop a window in the middle of a penalty-only batch
+/// (its breakpoints are recorded one vertex at a time). Whatever batch it
+/// stops, no impulse of it may survive: after the budget is raised, the
+/// same engine steps on to exactly the bits of an engine that never hit the
+/// budget. Every budget between the first contact window's start points
+/// and its full trajectory is tried, so some stop a penalty-only batch with
+/// touched vertices still to apply (with friction on, so a stale friction
+/// impulse would show too).
+#[test]
+fn a_budget_error_leaves_no_stale_impulse_behind() {
+    let (target, g) = grid_bullet();
+    let mut s = bullet_scene(target, g, 0.5);
+    s.contact.friction = 0.5;
+    // Layer 1 on an 8× finer clock: penalty-only batches between internal
+    // ticks, from the first tick of a window on.
+    s.contact.layer1_step_shift = 3;
+    s.objects[1] = {
+        let mut o = s.objects[1].clone();
+        if let ObjectKind::Cloth { velocity, .. } = &mut o.kind {
+            for (k, v) in velocity.iter_mut().enumerate() {
+                v.x += 0.3 * k as f64; // sliding: friction acts
+            }
+        }
+        o
+    };
+    let windows = 8;
+    let mut reference = engine(&s);
+    let mut needed = 0;
+    let mut states = Vec::new();
+    for _ in 0..windows {
+        let st = reference.step_window().unwrap();
+        println!(
+            "window {}: depth {:?}, {} breakpoints, {} rollbacks, {} layer events",
+            st.window, st.depth_histogram, st.breakpoints, st.rollbacks, st.layer_events
+        );
+        needed = needed.max(st.breakpoints as usize);
+        states.push((reference.world.x.clone(), reference.world.v.clone()));
+    }
+    assert!(reference.totals.rollbacks > 0, "no contact");
+    let (mut stopped, mut tried) = (0, 0);
+    for budget in (7..needed).step_by(1.max(needed / 400)) {
+        let mut e = engine(&s);
+        e.set_trajectory_budget(budget * 32);
+        let mut hit = false;
+        for (w, state) in states.iter().enumerate() {
+            match e.step_window() {
+                Ok(_) => {}
+                Err(SimError::TrajectoryBudget { .. }) => {
+                    hit = true;
+                    e.set_trajectory_budget(usize::MAX);
+                    e.step_window().unwrap();
+                }
+                Err(other) => panic!("budget {budget}: {other}"),
+            }
+            assert_eq!(
+                (&e.world.x, &e.world.v),
+                (&state.0, &state.1),
+                "budget {budget} breakpoints: window {w} differs from the unlimited run"
+            );
+        }
+        tried += 1;
+        stopped += usize::from(hit);
+    }
+    println!("{stopped} of {tried} budgets stopped a window; at most {needed} breakpoints");
+    assert!(stopped > 50, "{stopped} budgets stopped a window");
 }
 
 fn build_err(s: &WorldSpec) -> SimError {
