@@ -1789,7 +1789,7 @@ fn given_step_with_too_much_damping_names_the_cloth_and_the_values_that_pass() {
     assert!(msg.contains("mostly its stretch_damping"), "{msg}");
     assert!(!msg.contains("plain"), "{msg}");
     let value = |key: &str| -> f64 {
-        let at = msg.find(&format!("largest values that pass are")).unwrap();
+        let at = msg.find("largest values that pass are").unwrap();
         let rest = &msg[at..];
         let from = rest.find(&format!("{key} = ")).unwrap() + key.len() + 3;
         rest[from..].split(' ').next().unwrap().parse().unwrap()
