@@ -854,3 +854,51 @@ fn malformed_benchmark_files_name_file_and_line() {
         Err(CcdDataError::NoData(_))
     ));
 }
+
+/// A query that runs out of its interval budget answers "yes" (the
+/// conservative answer), whatever the truth. Edge B (0.1 m) turns once
+/// around the x axis, tangent to a circle of radius `r` about edge A (the
+/// axis), in 6,000 straight segments. Between breakpoints B's midpoint
+/// moves on a chord (B stays perpendicular to it), so the exact distance
+/// never drops below `r cos(π / 6000)`; `eta` lies 1e-9 below that. A plane
+/// certificate over two segments misses the kink between them by `4 r
+/// (2π / 6000)² / 8`, far more than the gap, so every segment needs an
+/// interval of its own: more than `MAX_INTERVALS`.
+#[test]
+fn budget_exhaustion_answers_yes() {
+    let (r, n) = (1e-3, 6000usize);
+    let step = std::f64::consts::TAU / n as f64;
+    let eta = r * (0.5 * step).cos() * (1.0 - 1e-9);
+    let times: Vec<f64> = (0..=n).map(|k| k as f64 / n as f64).collect();
+    let end = |sign: f64| -> Vec<DVec3> {
+        (0..=n)
+            .map(|k| {
+                let th = k as f64 * step;
+                let (radial, tangent) = (
+                    DVec3::new(0.0, th.cos(), th.sin()),
+                    DVec3::new(0.0, -th.sin(), th.cos()),
+                );
+                radial * r + tangent * (0.05 * sign)
+            })
+            .collect()
+    };
+    let still = |p: DVec3| vec![p, p];
+    let times = [times.clone(), times, vec![0.0, 1.0], vec![0.0, 1.0]];
+    let points = [end(-1.0), end(1.0), still(-DVec3::X), still(DVec3::X)];
+    let traj = traj_of(&times, &points);
+    let mut stats = CcdStats::default();
+    assert!(
+        proximity(EE, &traj, eta, &mut stats),
+        "a query that ran out of budget must answer yes: {stats:?}"
+    );
+    assert_eq!(stats.budget_exhausted, 1, "{stats:?}");
+    assert!(
+        stats.intervals >= weft_geom::ccd::MAX_INTERVALS,
+        "{stats:?}"
+    );
+    // With a gap the certificates resolve, the same motion is certified
+    // within the budget: the "yes" above came from the budget.
+    let mut stats = CcdStats::default();
+    assert!(!proximity(EE, &traj, 0.5 * r, &mut stats), "{stats:?}");
+    assert_eq!(stats.budget_exhausted, 0);
+}

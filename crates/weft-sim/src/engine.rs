@@ -564,7 +564,19 @@ impl<E: Executor> Engine<E> {
             // Roll back: restore the state, keep (and extend) the layers.
             snap.restore(&mut self.world);
             let extra = self.world.contact.layers_per_detection;
+            let resolved = self.world.schedule.resolved_depth();
             for key in &reported {
+                let depth = self.world.layers.depth(key) + extra;
+                if depth > resolved {
+                    let w = &self.world;
+                    return Err(SimError::LayerTooDeep {
+                        time: w.lattice.seconds(t0),
+                        key: *key,
+                        pair: w.describe_stencil(key),
+                        depth,
+                        resolved,
+                    });
+                }
                 self.world.layers.deepen(*key, extra);
             }
             rollbacks += 1;

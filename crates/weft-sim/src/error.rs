@@ -90,6 +90,21 @@ pub enum SimError {
         /// Passes of the window that ended in a non-finite value.
         blown_up: u32,
     },
+    /// A stencil needs a layer deeper than the tick lattice resolves.
+    #[error(
+        "window starting at t = {time:.6} s: {pair} needs layer {depth}, deeper than the \
+         {resolved} layers whose steps h_l = h_1 l^(-3/2) the tick lattice resolves (at least \
+         one tick each); lower contact.layer1_step_shift (each step down resolves about 1.6× \
+         as many layers)"
+    )]
+    LayerTooDeep {
+        time: f64,
+        key: StencilKey,
+        /// The stencil's two primitives, by object and object-local vertex index.
+        pair: String,
+        depth: u32,
+        resolved: u32,
+    },
     #[error(
         "window starting at t = {time:.6} s needs {breakpoints} trajectory breakpoints, more than \
          the memory budget of {budget_bytes} bytes; shorten the window (time.steps_per_window) \

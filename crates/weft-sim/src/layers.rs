@@ -66,6 +66,14 @@ impl LayerSchedule {
         (h as Tick).max(1)
     }
 
+    /// The deepest layer whose step `h_1 l^(-3/2)` is at least one tick, so
+    /// that [`LayerSchedule::step`] is exact rounding down (deeper layers
+    /// would round up to one tick: a larger `omega h`, unstable). A stencil
+    /// never gets a deeper layer (the engine stops with an error).
+    pub fn resolved_depth(&self) -> u32 {
+        resolved_depth(self.h_1)
+    }
+
     /// Energy of layer `l` at distance `d`.
     pub fn energy(&self, l: u32, d: f64) -> f64 {
         let gap = self.eta(l) - d;
@@ -80,6 +88,31 @@ impl LayerSchedule {
     pub fn energy_through(&self, depth: u32, d: f64) -> f64 {
         (1..=depth).map(|l| self.energy(l, d)).sum()
     }
+}
+
+/// The deepest layer `l` whose step `h_1 l^(-3/2)` (the formula of
+/// [`LayerSchedule::step`]) is at least one tick, for layer 1's step `h_1`
+/// in ticks (0 when not even layer 1 is resolved): `l ≤ h_1^(2/3)`, found
+/// by doubling and bisection on the same floating-point formula.
+pub fn resolved_depth(h_1: Tick) -> u32 {
+    let exact = |l: u32| h_1 as f64 * libm::pow(l as f64, -1.5) >= 1.0;
+    if !exact(1) {
+        return 0;
+    }
+    let mut lo = 1u32;
+    while lo < u32::MAX / 2 && exact(lo * 2) {
+        lo *= 2;
+    }
+    let mut hi = lo * 2;
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if exact(mid) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
 }
 
 /// The active layers of one stencil.
@@ -402,5 +435,23 @@ mod tests {
             clamped > 50,
             "the clamp must act in some batches: {clamped}"
         );
+    }
+
+    #[test]
+    fn resolved_depth_is_the_last_layer_with_a_step_of_a_tick() {
+        for h_1 in [0u64, 1, 2, 7, 8, 1000, 1024, 1 << 17, 1 << 20] {
+            let d = resolved_depth(h_1);
+            let s = LayerSchedule { h_1, ..schedule() };
+            let exact = |l: u32| h_1 as f64 * libm::pow(l as f64, -1.5) >= 1.0;
+            if d > 0 {
+                assert!(exact(d) && s.step(d) >= 1, "h_1 = {h_1}");
+            }
+            assert!(!exact(d + 1), "h_1 = {h_1}: {d}");
+            let approx = (h_1 as f64).powf(2.0 / 3.0);
+            assert!(
+                (d as f64 - approx).abs() <= 1.0,
+                "h_1 = {h_1}: {d} vs {approx}"
+            );
+        }
     }
 }

@@ -14,7 +14,7 @@ use crate::config::{ContactConfig, LimitsConfig, TimeConfig};
 use crate::error::{Place, SimError};
 use crate::internal::InternalForces;
 use crate::kinematics::{Motion, Script};
-use crate::layers::{ActiveLayers, LayerSchedule};
+use crate::layers::{resolved_depth, ActiveLayers, LayerSchedule};
 use crate::materials::{self, Material};
 use crate::partition::{Contiguous, Partitioner, Partitioning};
 
@@ -442,7 +442,28 @@ impl World {
             })
             .fold(f64::INFINITY, f64::min);
         let eta_1 = c.thickness.min(0.5 * min_alt);
-        let ticks_h1 = lattice.internal_step() >> c.layer1_step_shift.min(20);
+        // Layer 1's step, h_el / 2^shift, and the deepest layer whose step
+        // h_1 l^(-3/2) the tick lattice still resolves (at least one tick):
+        // a shift that leaves fewer than MIN_RESOLVED_LAYERS is refused, not
+        // capped — a deeper layer's step would round up and break its
+        // stability.
+        let h1_of = |shift: u32| lattice.internal_step().checked_shr(shift).unwrap_or(0);
+        let ticks_h1 = h1_of(c.layer1_step_shift);
+        let resolved = resolved_depth(ticks_h1);
+        if resolved < MIN_RESOLVED_LAYERS {
+            let max_shift = (0..c.layer1_step_shift.min(Tick::BITS))
+                .rev()
+                .find(|&s| resolved_depth(h1_of(s)) >= MIN_RESOLVED_LAYERS)
+                .unwrap_or(0);
+            return Err(SimError::Config(format!(
+                "contact.layer1_step_shift = {shift} gives layer 1 a step of {ticks_h1} ticks \
+                 (h_el / 2^{shift}, with {} ticks per internal step), and the tick lattice then \
+                 resolves the steps h_l = h_1 l^(-3/2) of {resolved} layers only, fewer than \
+                 the {MIN_RESOLVED_LAYERS} a deep contact may need; use at most {max_shift}",
+                lattice.internal_step(),
+                shift = c.layer1_step_shift,
+            )));
+        }
         let h_1 = lattice.seconds(ticks_h1);
         let m_min = mass
             .iter()
@@ -450,14 +471,33 @@ impl World {
             .filter(|(_, &w)| w > 0.0)
             .map(|(&m, _)| m)
             .fold(f64::INFINITY, f64::min);
+        // The automatic k_1 = m_min (0.1 / h_1)² / 2 puts layer 1 at
+        // omega_1 h_1 = 0.1 with omega_1² ≤ 2 k_1 w_max (`acm-spec.md` §3),
+        // and every deeper layer has the same omega h: it is the largest
+        // stiffness within that bound.
+        let k_max = m_min * (0.1 / h_1) * (0.1 / h_1) / 2.0;
         let k_1 = match c.stiffness {
-            Some(k) if k > 0.0 && k.is_finite() => k,
+            Some(k) if k > 0.0 && k.is_finite() => {
+                if m_min.is_finite() && k > k_max {
+                    let omega_h = (2.0 * k / m_min).sqrt() * h_1;
+                    return Err(SimError::Config(format!(
+                        "contact.stiffness = {k:e} N/m is above the layer stability bound \
+                         omega_1 h_1 ≤ 0.1 for layer 1's step h_1 = {h_1:.4e} s: it gives \
+                         omega_1 h_1 = {omega_h:.3} (lightest cloth vertex {m_min:.3e} kg), and \
+                         the bound allows at most {k_max:.4e} N/m (the automatic value); lower \
+                         it or leave it out, or shorten layer 1's step with \
+                         contact.layer1_step_shift (each step halves h_1 and allows 4× the \
+                         stiffness)"
+                    )));
+                }
+                k
+            }
             Some(k) => {
                 return Err(SimError::Config(format!(
                     "contact.stiffness = {k} must be positive"
                 )))
             }
-            None if m_min.is_finite() => m_min * (0.1 / h_1) * (0.1 / h_1) / 2.0,
+            None if m_min.is_finite() => k_max,
             None => 1.0,
         };
         let schedule = LayerSchedule {
@@ -552,6 +592,10 @@ impl World {
         self.lattice.seconds(self.tick)
     }
 }
+
+/// The fewest penalty layers whose steps the tick lattice must resolve (the
+/// 100 m/s impacts of the tests reach depth 100).
+const MIN_RESOLVED_LAYERS: u32 = 100;
 
 /// The fraction of the damped rest system's explicit stability limit a
 /// derived internal step may use. `beta` (≤ 0.5) leaves room for StVK's

@@ -1804,6 +1804,99 @@ fn given_step_with_too_much_damping_names_the_cloth_and_the_values_that_pass() {
     assert!(build_err(&over).to_string().contains("cloth 'damped'"));
 }
 
+/// A user-set contact stiffness is checked against the layer stability
+/// bound `omega_1 h_1 ≤ 0.1`: the automatic value (the bound) and anything
+/// below it build; above it the scene is refused with both numbers.
+#[test]
+fn contact_stiffness_above_the_layer_stability_bound_is_refused() {
+    let sheet = grid(
+        DVec3::new(0.0, 0.0, 0.01),
+        DVec3::X,
+        DVec3::Y,
+        [0.02, 0.02],
+        [5, 5],
+    );
+    let mut s = spec(vec![cloth("sheet", sheet, DVec3::ZERO)], DVec3::ZERO, 10);
+    let auto = World::build(&s).unwrap().schedule.k_1;
+    s.contact.stiffness = Some(auto);
+    assert_eq!(World::build(&s).unwrap().schedule.k_1, auto);
+    s.contact.stiffness = Some(0.5 * auto);
+    assert_eq!(World::build(&s).unwrap().schedule.k_1, 0.5 * auto);
+    s.contact.stiffness = Some(4.0 * auto);
+    let msg = build_err(&s).to_string();
+    println!("{msg}");
+    assert!(
+        msg.contains("contact.stiffness") && msg.contains("0.200"),
+        "{msg}"
+    );
+    assert!(msg.contains(&format!("{auto:.4e}")), "{msg}");
+    // A layer-1 step 4× shorter allows 16× the stiffness.
+    s.contact.layer1_step_shift = 2;
+    s.contact.stiffness = Some(16.0 * auto);
+    World::build(&s).expect("stiffer layer on a shorter step");
+}
+
+/// `layer1_step_shift` beyond what the tick lattice resolves (fewer than 100
+/// layer steps of at least one tick) is refused, naming the largest shift
+/// that works — not silently capped.
+#[test]
+fn layer1_step_shift_beyond_the_tick_lattice_is_refused() {
+    let sheet = grid(
+        DVec3::new(0.0, 0.0, 0.01),
+        DVec3::X,
+        DVec3::Y,
+        [0.02, 0.02],
+        [5, 5],
+    );
+    let mut s = spec(vec![cloth("sheet", sheet, DVec3::ZERO)], DVec3::ZERO, 10);
+    s.contact.layer1_step_shift = 10;
+    let w = World::build(&s).expect("shift 10 resolves 101 layers");
+    assert_eq!(w.schedule.h_1, 1 << 10);
+    assert!(w.schedule.resolved_depth() >= 100);
+    for shift in [11, 16, 20, 21, 64, u32::MAX] {
+        s.contact.layer1_step_shift = shift;
+        let msg = build_err(&s).to_string();
+        assert!(
+            msg.contains(&format!("layer1_step_shift = {shift}")) && msg.contains("at most 10"),
+            "{msg}"
+        );
+    }
+}
+
+/// A stencil is never given a layer deeper than the lattice resolves (its
+/// step would round up to a tick and be unstable): with layer 1 on a
+/// 1,024-tick step (101 layers resolved) and 102 layers per detection, the
+/// first detection stops the engine with an error naming the stencil and
+/// the depth, at the window start.
+#[test]
+fn a_layer_deeper_than_the_lattice_resolves_is_an_error() {
+    let (target, g) = grid_bullet();
+    let mut spec = bullet_scene(target, g, 100.0);
+    spec.contact.layer1_step_shift = 10;
+    spec.contact.layers_per_detection = 102;
+    let mut e = engine(&spec);
+    assert_eq!(e.world.schedule.resolved_depth(), 101);
+    for _ in 0..15 {
+        let x = e.world.x.clone();
+        match e.step_window() {
+            Ok(_) => {}
+            Err(err @ SimError::LayerTooDeep { .. }) => {
+                let msg = err.to_string();
+                println!("{msg}");
+                assert!(
+                    msg.contains("layer 102") && msg.contains("101 layers"),
+                    "{msg}"
+                );
+                assert!(msg.contains("bullet #") && msg.contains("layer1_step_shift"));
+                assert_eq!(e.world.x, x);
+                return;
+            }
+            Err(other) => panic!("wrong error: {other}"),
+        }
+    }
+    panic!("the impact was never detected");
+}
+
 // ------------------------------------------------- 5. penalty kick = -h dV/dx
 
 #[test]

@@ -1246,13 +1246,6 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
         limits: LimitsConfig::default(),
         partitions: file.partitions,
     };
-    if file.contact.layer1_step_shift > 16 {
-        return Err(invalid(
-            path,
-            "contact.layer1_step_shift",
-            "must be at most 16",
-        ));
-    }
     if !(file.contact.friction >= 0.0 && file.contact.friction.is_finite()) {
         return Err(invalid(
             path,
