@@ -20,6 +20,11 @@ pub struct WindowStats {
     pub internal_stencil_evaluations: u64,
     /// Penalty-layer stencil evaluations (one per stencil per layer tick).
     pub layer_events: u64,
+    /// Exact distance evaluations at penalty batches (one serves every
+    /// firing layer of its stencil); the other layer events were skipped:
+    /// asleep, or certainly outside every firing layer by a distance bound.
+    #[serde(default)]
+    pub layer_evaluations: u64,
     /// Penalty evaluations that kicked (stencil inside its layer).
     pub layer_kicks: u64,
     /// Rollbacks of this window.

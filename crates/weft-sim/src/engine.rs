@@ -155,6 +155,7 @@ impl Snapshot {
 struct PassCounts {
     internal_events: u64,
     layer_events: u64,
+    layer_evaluations: u64,
     layer_kicks: u64,
     min_separation: f64,
     /// Wall seconds of the internal-force part of internal ticks.
@@ -241,6 +242,9 @@ pub struct Engine<E: Executor = Serial> {
     pub narrow_load: NarrowLoad,
     /// Over ranks: this rank's share of the internal ticks.
     share: Option<RankShare>,
+    /// Evaluate every penalty-layer event exactly (no sleeping, no
+    /// distance-bound skip): the same bits, slower; for verifying the skips.
+    every_layer_event: bool,
 }
 
 /// Narrow-phase work per rank (measured task seconds, summed over passes):
@@ -297,6 +301,7 @@ impl<E: Executor> Engine<E> {
             narrow_costs: CostModel::default(),
             narrow_load: NarrowLoad::default(),
             share,
+            every_layer_event: false,
         };
         engine.check_initial_state()?;
         Ok(engine)
@@ -307,6 +312,13 @@ impl<E: Executor> Engine<E> {
     pub fn set_trajectory_budget(&mut self, bytes: usize) {
         self.world.limits.trajectory_budget_bytes = bytes;
         self.traj.set_budget(bytes);
+    }
+
+    /// Evaluates every penalty-layer event exactly when `on`: no stencil
+    /// sleeps and none is skipped by its distance bound. Skipped events kick
+    /// zero, so the bits are the same (tested); only the time differs.
+    pub fn evaluate_every_layer_event(&mut self, on: bool) {
+        self.every_layer_event = on;
     }
 
     /// The executor.
@@ -828,6 +840,7 @@ impl<E: Executor> Engine<E> {
             // In key order, so the verdicts and hits come out in key order.
             ws.scan.sort_unstable();
             let anchors = &ws.anchors;
+            let exhaustive = self.every_layer_event;
             // (Serial batches fill reused buffers: allocating per batch
             // scatters the trajectories' storage and slows the narrow phase.)
             let scan = |run: &[u32], verdicts: &mut Vec<(u32, Verdict)>| {
@@ -844,7 +857,7 @@ impl<E: Executor> Engine<E> {
                         });
                     // Certainly outside every firing layer: its kicks are
                     // zero, so skipping the evaluation leaves the same bits.
-                    if lower >= eta_first {
+                    if lower >= eta_first && !exhaustive {
                         let (awake_at, room) = sleep(key, lower, eta_1, &x, w, t);
                         if room > 0.0 {
                             verdicts.push((a, Verdict::Sleep(awake_at)));
@@ -885,6 +898,7 @@ impl<E: Executor> Engine<E> {
                 match verdict {
                     Verdict::Sleep(until) => ws.dormancy.sleep(a, until),
                     Verdict::Near(c, x) => {
+                        counts.layer_evaluations += 1;
                         counts.min_separation = counts.min_separation.min(c.d);
                         ws.anchors[a as usize] = Some((c.d, x));
                         ws.hits.push((a, c));
@@ -1387,6 +1401,7 @@ impl<E: Executor> Engine<E> {
             internal_events: counts.internal_events,
             internal_stencil_evaluations: counts.internal_events * w.internal.num_stencils() as u64,
             layer_events: counts.layer_events,
+            layer_evaluations: counts.layer_evaluations,
             layer_kicks: counts.layer_kicks,
             rollbacks,
             active_stencils: w.layers.stencils.len() as u64,

@@ -1897,6 +1897,59 @@ fn a_layer_deeper_than_the_lattice_resolves_is_an_error() {
     panic!("the impact was never detected");
 }
 
+/// Asleep stencils and layer events skipped by a distance bound kick zero,
+/// so skipping them leaves the same bits: on random scenes (two small
+/// cloths falling at random tilts and speeds onto a sphere and onto each
+/// other, friction on or off) the engine with every layer event evaluated
+/// exactly and the engine with its skips end every window in the same
+/// positions, velocities, clocks and layers — while the skips did skip.
+#[test]
+fn skipped_layer_events_give_the_bits_of_full_evaluation() {
+    let mut rng = Rng(0x5eed);
+    let (mut events, mut evaluations, mut kicks) = (0u64, 0u64, 0u64);
+    for case in 0..4 {
+        let mut objects = vec![obstacle("ball", sphere(DVec3::ZERO, 0.03, 2))];
+        for k in 0..2 {
+            let tilt = rng.vec(0.15);
+            let eu = (DVec3::X + tilt).normalize();
+            let ev = (DVec3::Z + rng.vec(0.15)).cross(eu).normalize();
+            let centre = DVec3::new(rng.uniform(-0.01, 0.01), rng.uniform(-0.01, 0.01), 0.0)
+                + DVec3::Z * (0.045 + 0.02 * k as f64);
+            let g = grid(centre, eu, ev, [0.04, 0.04], [6, 6]);
+            objects.push(cloth(&format!("cloth{k}"), g, rng.vec(0.5) - DVec3::Z));
+        }
+        let mut s = spec(objects, DVec3::new(0.0, 0.0, -9.81), 20);
+        s.contact.friction = if case % 2 == 0 { 0.0 } else { 0.4 };
+        s.contact.layer1_step_shift = (case / 2) as u32;
+        let mut fast = engine(&s);
+        let mut full = engine(&s);
+        full.evaluate_every_layer_event(true);
+        for w in 0..25 {
+            let a = fast.step_window().unwrap();
+            let b = full.step_window().unwrap();
+            let what = format!("case {case}, window {w}");
+            assert_eq!(fast.world.x, full.world.x, "{what}: positions");
+            assert_eq!(fast.world.v, full.world.v, "{what}: velocities");
+            assert_eq!(fast.world.tau, full.world.tau, "{what}: clocks");
+            assert_eq!(fast.world.layers, full.world.layers, "{what}: layers");
+            assert_eq!(
+                (a.layer_events, a.layer_kicks),
+                (b.layer_events, b.layer_kicks)
+            );
+            assert!(b.layer_evaluations <= b.layer_events);
+            events += a.layer_events;
+            evaluations += a.layer_evaluations;
+            kicks += a.layer_kicks;
+        }
+    }
+    println!("{events} layer events, {evaluations} evaluated exactly, {kicks} kicks");
+    assert!(kicks > 1000, "too little contact: {kicks} kicks");
+    assert!(
+        2 * evaluations < events,
+        "the skips must skip: {evaluations} of {events}"
+    );
+}
+
 // ------------------------------------------------- 5. penalty kick = -h dV/dx
 
 #[test]
