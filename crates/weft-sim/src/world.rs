@@ -348,9 +348,12 @@ impl World {
             &partitioning.of_triangle,
             partitioning.count,
         )
-        .map_err(|(f, e)| SimError::Material {
-            object: place_of_triangle(&objects, f).object,
-            source: e,
+        .map_err(|(f, e)| {
+            let object = (objects.iter()).find(|o| o.triangles.contains(&f));
+            SimError::Material {
+                object: object.map_or("?".into(), |o| o.name.clone()),
+                source: e.in_object(object.map_or(0, |o| o.vertices.start)),
+            }
         })?;
 
         // Internal step: beta times the explicit stability limit `2 /

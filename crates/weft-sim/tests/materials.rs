@@ -803,7 +803,7 @@ fn invalid_materials_are_rejected_with_the_parameter_named() {
                 area_density: -1.0,
                 ..cloth()
             },
-            "area_density",
+            "density", // the scene key, not the field name
         ),
         (
             Material {
@@ -819,6 +819,7 @@ fn invalid_materials_are_rejected_with_the_parameter_named() {
             matches!(err, MaterialError::InvalidParameter { parameter, .. } if parameter == name)
         );
         assert!(err.to_string().contains(name), "{err}");
+        assert!(!err.to_string().contains("area_density"), "{err}");
     }
     let (lambda, mu) = cloth().lame();
     let (e, nu) = (cloth().youngs_modulus, cloth().poisson_ratio);
@@ -830,7 +831,9 @@ fn invalid_materials_are_rejected_with_the_parameter_named() {
 fn degenerate_rest_shapes_are_rejected_with_the_element_named() {
     let collinear = [DVec3::ZERO, DVec3::X, DVec3::X * 2.0];
     let err = StretchElement::new([7, 8, 9], collinear).unwrap_err();
-    assert!(err.to_string().contains("[7, 8, 9]"), "{err}");
+    assert!(err.to_string().contains("#7, #8, #9"), "{err}");
+    // Messages name the vertices of the object, not the input ids.
+    assert!(err.clone().in_object(7).to_string().contains("#0, #1, #2"));
     let nan = [DVec3::ZERO, DVec3::X, DVec3::new(f64::NAN, 1.0, 0.0)];
     assert!(StretchElement::new([0, 1, 2], nan).is_err());
     let sliver = [DVec3::ZERO, DVec3::X, DVec3::new(0.5, 1e-12, 0.0)];
@@ -844,7 +847,8 @@ fn degenerate_rest_shapes_are_rejected_with_the_element_named() {
     ];
     let err = HingeElement::new([3, 4, 5, 6], flat_wing).unwrap_err();
     let msg = err.to_string();
-    assert!(msg.contains("[3, 4]") && msg.contains("wing"), "{msg}");
+    assert!(msg.contains("#3–#4") && msg.contains("wing"), "{msg}");
+    assert!(err.in_object(3).to_string().contains("#0–#1"));
     let no_edge = [DVec3::ZERO, DVec3::ZERO, DVec3::Y, -DVec3::Y];
     assert!(HingeElement::new([0, 1, 2, 3], no_edge).is_err());
 }

@@ -70,21 +70,26 @@ pub enum MaterialError {
         value: f64,
         requirement: &'static str,
     },
-    /// A rest triangle with (near-)zero area or a non-finite coordinate.
+    /// A rest triangle with (near-)zero area or a non-finite coordinate
+    /// (`verts` are input ids; [`MaterialError::in_object`] makes them the
+    /// object's own).
     #[error(
-        "stretch element on vertices {verts:?} (input ids) has a degenerate rest triangle \
-         (2·area / longest edge² = {quality:e}, needs > {min_quality:e} and finite coordinates): \
-         fix the rest shape of this triangle or remove it"
+        "the rest triangle of vertices #{}, #{}, #{} is degenerate (2·area / longest edge² = \
+         {quality:e}, needs > {min_quality:e} and finite coordinates): fix the rest shape of \
+         this triangle or remove it",
+        verts[0], verts[1], verts[2]
     )]
     DegenerateTriangle {
         verts: [u32; 3],
         quality: f64,
         min_quality: f64,
     },
-    /// A rest hinge whose edge or one of whose wings is degenerate.
+    /// A rest hinge whose edge or one of whose wings is degenerate (input
+    /// ids, as for `DegenerateTriangle`).
     #[error(
-        "hinge on vertices {verts:?} (edge {edge:?}, wings {wings:?}; input ids) has a degenerate \
-         rest shape ({what}): fix the rest shape of its two triangles"
+        "the bending hinge on edge #{}–#{} (wing vertices #{}, #{}) has a degenerate rest shape \
+         ({what}): fix the rest shape of its two triangles",
+        edge[0], edge[1], wings[0], wings[1]
     )]
     DegenerateHinge {
         verts: [u32; 4],
@@ -95,6 +100,37 @@ pub enum MaterialError {
     /// Element arrays that do not fit together (a caller bug).
     #[error("inconsistent material input: {0}")]
     Inconsistent(String),
+}
+
+impl MaterialError {
+    /// The same error with its vertex ids relative to an object whose
+    /// vertices start at input id `first` (what messages name).
+    pub fn in_object(self, first: u32) -> Self {
+        let local = |v: u32| v - first;
+        match self {
+            Self::DegenerateTriangle {
+                verts,
+                quality,
+                min_quality,
+            } => Self::DegenerateTriangle {
+                verts: verts.map(local),
+                quality,
+                min_quality,
+            },
+            Self::DegenerateHinge {
+                verts,
+                edge,
+                wings,
+                what,
+            } => Self::DegenerateHinge {
+                verts: verts.map(local),
+                edge: edge.map(local),
+                wings: wings.map(local),
+                what,
+            },
+            other => other,
+        }
+    }
 }
 
 /// The material of one cloth (SI units).
@@ -151,7 +187,7 @@ impl Material {
         let pos = |v: f64| v.is_finite() && v > 0.0;
         let nonneg = |v: f64| v.is_finite() && v >= 0.0;
         if !pos(self.area_density) {
-            return bad("area_density", self.area_density, "finite and > 0 (kg/m²)");
+            return bad("density", self.area_density, "finite and > 0 (kg/m²)");
         }
         if !pos(self.youngs_modulus) {
             return bad("youngs_modulus", self.youngs_modulus, "finite and > 0 (Pa)");
