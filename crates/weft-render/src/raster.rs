@@ -14,20 +14,56 @@ use glam::{DVec3, Vec3};
 /// What a triangle is made of, which decides its colour.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Surface {
-    /// Simulated cloth: warm, with front and back faces tinted differently.
-    Cloth,
+    /// Simulated cloth number `k` (counting cloth objects in input order):
+    /// coloured [`CLOTH_COLORS`]`[k % len]`, front and back faces tinted
+    /// differently, so that two cloths can be told apart.
+    Cloth(usize),
     /// A kinematic obstacle: grey.
     Obstacle,
+}
+
+/// The two colours of one cloth.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ClothColor {
+    /// Seen from the side its triangles' counter-clockwise normal points to.
+    pub front: [u8; 3],
+    /// Seen from the other side: a lighter tint of the same family.
+    pub back: [u8; 3],
 }
 
 /// Background colour at the top of the image.
 pub const BACKGROUND_TOP: [u8; 3] = [242, 245, 249];
 /// Background colour at the bottom of the image.
 pub const BACKGROUND_BOTTOM: [u8; 3] = [198, 207, 220];
-/// Cloth seen from the side its triangles' counter-clockwise normal points to.
-pub const CLOTH_FRONT: [u8; 3] = [222, 104, 60];
-/// Cloth seen from the other side.
-pub const CLOTH_BACK: [u8; 3] = [240, 184, 90];
+/// Cloth colours in object order: hues far apart from each other, from the
+/// grey obstacles and from the pale blue-grey background (the first cloth
+/// keeps weft's terracotta and gold).
+pub const CLOTH_COLORS: [ClothColor; 6] = [
+    ClothColor {
+        front: [222, 104, 60],
+        back: [240, 184, 90],
+    },
+    ClothColor {
+        front: [46, 110, 196],
+        back: [124, 176, 232],
+    },
+    ClothColor {
+        front: [56, 150, 78],
+        back: [150, 206, 118],
+    },
+    ClothColor {
+        front: [140, 80, 188],
+        back: [198, 156, 228],
+    },
+    ClothColor {
+        front: [24, 150, 158],
+        back: [118, 212, 204],
+    },
+    ClothColor {
+        front: [206, 66, 136],
+        back: [238, 150, 192],
+    },
+];
 /// Obstacles, either side.
 pub const OBSTACLE: [u8; 3] = [158, 161, 168];
 
@@ -178,8 +214,8 @@ impl Rasterizer {
         // The eye is the view-space origin.
         let front = face.dot(-p[0]) > 0.0;
         let color = match (surface, front) {
-            (Surface::Cloth, true) => CLOTH_FRONT,
-            (Surface::Cloth, false) => CLOTH_BACK,
+            (Surface::Cloth(k), true) => CLOTH_COLORS[k % CLOTH_COLORS.len()].front,
+            (Surface::Cloth(k), false) => CLOTH_COLORS[k % CLOTH_COLORS.len()].back,
             (Surface::Obstacle, _) => OBSTACLE,
         };
         let mut verts = [0, 1, 2].map(|k| {

@@ -133,7 +133,7 @@ struct Job<'a> {
 /// `dir/render/frame_NNNNN.png`, one image per selected frame, then writes
 /// `dir/preview.mp4` (through ffmpeg) or `dir/preview.gif` as `opts.video`
 /// says. Cloth triangles (per `objects.json`; all triangles when it is
-/// missing) are drawn warm, obstacles grey.
+/// missing) get one colour per cloth object, obstacles are grey.
 ///
 /// Old `frame_*.png` files in `dir/render` that this call did not write are
 /// removed, and so is the other preview format (`preview.gif` after writing

@@ -175,10 +175,12 @@ impl RunFolder {
         })
     }
 
-    /// The surface of each of `num_triangles` triangles: from `objects.json`,
-    /// or all cloth without it. Triangles no object claims are cloth.
+    /// The surface of each of `num_triangles` triangles: from `objects.json`
+    /// (the k-th cloth object is `Surface::Cloth(k)`), or all the first cloth
+    /// without it. Triangles no object claims are the first cloth.
     pub fn surfaces(&self, num_triangles: usize) -> Result<Vec<Surface>, RenderError> {
-        let mut s = vec![Surface::Cloth; num_triangles];
+        let mut s = vec![Surface::Cloth(0); num_triangles];
+        let mut cloths = 0;
         for o in self.objects.iter().flatten() {
             let [a, b] = o.triangles;
             if b > num_triangles {
@@ -191,7 +193,10 @@ impl RunFolder {
                     ),
                 ));
             }
-            if !o.cloth {
+            if o.cloth {
+                s[a..b].fill(Surface::Cloth(cloths));
+                cloths += 1;
+            } else {
                 s[a..b].fill(Surface::Obstacle);
             }
         }

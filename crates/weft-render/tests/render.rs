@@ -3,7 +3,7 @@
 
 use glam::DVec3;
 use std::path::{Path, PathBuf};
-use weft_render::raster::{BACKGROUND_TOP, CLOTH_FRONT, OBSTACLE};
+use weft_render::raster::{BACKGROUND_TOP, CLOTH_COLORS, OBSTACLE};
 use weft_render::{
     plot_stats, render_run, Camera, Image, Rasterizer, RenderError, RenderOptions, Surface,
     VideoMode,
@@ -182,8 +182,8 @@ fn a_near_triangle_hides_a_far_one_in_either_drawing_order() {
     let x: Vec<DVec3> = near.iter().chain(&far).copied().collect();
     let mut r = Rasterizer::new(64, 64, 2);
     for (tris, surfaces) in [
-        ([[0, 1, 2], [3, 4, 5]], [Surface::Cloth, Surface::Obstacle]),
-        ([[3, 4, 5], [0, 1, 2]], [Surface::Obstacle, Surface::Cloth]),
+        ([[0, 1, 2], [3, 4, 5]], [Surface::Cloth(0), Surface::Obstacle]),
+        ([[3, 4, 5], [0, 1, 2]], [Surface::Obstacle, Surface::Cloth(0)]),
     ] {
         let img = r.render(&x, &tris, &surfaces, &camera);
         let c = img.pixel(32, 34);
@@ -205,11 +205,11 @@ fn a_fitted_camera_centres_a_unit_sphere() {
     let camera = Camera::fit_points(&x, w as f64 / h as f64, DVec3::Y, 35.0).unwrap();
     let mut r = Rasterizer::new(w, h, 3);
     let empty = r.render(&[], &[], &[], &camera).clone();
-    for surface in [Surface::Obstacle, Surface::Cloth] {
+    for surface in [Surface::Obstacle, Surface::Cloth(0)] {
         let img = r.render(&x, &t, &vec![surface; t.len()], &camera).clone();
         let c = img.pixel(w / 2, h / 2);
-        let want = if surface == Surface::Cloth {
-            CLOTH_FRONT
+        let want = if surface == Surface::Cloth(0) {
+            CLOTH_COLORS[0].front
         } else {
             OBSTACLE
         };
@@ -402,6 +402,85 @@ fn a_run_without_objects_json_is_all_cloth() {
     assert!(grey < 20, "{grey} grey pixels");
     // A single frame implies no rate: the default is used.
     assert_eq!(report.fps, weft_render::render::DEFAULT_FPS);
+}
+
+/// The hue of a colour in degrees; `None` for the greys (background,
+/// obstacles, anti-aliased edges) whose hue says nothing.
+fn hue(p: &[u8]) -> Option<f64> {
+    let [r, g, b] = [p[0], p[1], p[2]].map(f64::from);
+    let (max, min) = (r.max(g).max(b), r.min(g).min(b));
+    if max - min < 40.0 {
+        return None;
+    }
+    let h = if max == r {
+        (g - b) / (max - min)
+    } else if max == g {
+        2.0 + (b - r) / (max - min)
+    } else {
+        4.0 + (r - g) / (max - min)
+    };
+    Some((60.0 * h).rem_euclid(360.0))
+}
+
+/// The median of the hues of the coloured pixels in columns `xs`.
+fn median_hue(img: &Image, xs: std::ops::Range<u32>) -> f64 {
+    let mut hues: Vec<f64> = xs
+        .flat_map(|x| (0..img.height).map(move |y| (x, y)))
+        .filter_map(|(x, y)| hue(&img.pixel(x, y)))
+        .collect();
+    assert!(hues.len() > 200, "only {} coloured pixels", hues.len());
+    hues.sort_by(f64::total_cmp);
+    hues[hues.len() / 2]
+}
+
+#[test]
+fn each_cloth_gets_its_own_colour() {
+    // One frame of two equal cloths side by side (left and right of x = 0),
+    // listed as two cloth objects, seen from above and in front.
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("frames")).unwrap();
+    let (a, ta) = cloth(8, 0.8, 0.0);
+    let nv = a.len() as u32;
+    let mut x: Vec<DVec3> = a.iter().map(|p| *p - DVec3::X * 0.5).collect();
+    x.extend(a.iter().map(|p| *p + DVec3::X * 0.5));
+    let mut t = ta.clone();
+    t.extend(ta.iter().map(|f| f.map(|i| i + nv)));
+    weft_io::write_ply(&dir.path().join("frames/frame_00000.ply"), &x, &t, None).unwrap();
+    std::fs::write(
+        dir.path().join("frames.jsonl"),
+        "{\"frame\":0,\"file\":\"frames/frame_00000.ply\",\"time\":0.0}\n",
+    )
+    .unwrap();
+    let nt = ta.len();
+    std::fs::write(
+        dir.path().join("objects.json"),
+        format!(
+            "{{\"objects\":[{{\"name\":\"left\",\"vertices\":[0,{nv}],\"triangles\":[0,{nt}],\"cloth\":true}},\
+             {{\"name\":\"right\",\"vertices\":[{nv},{}],\"triangles\":[{nt},{}],\"cloth\":true}}]}}",
+            2 * nv,
+            2 * nt
+        ),
+    )
+    .unwrap();
+    let opts = RenderOptions {
+        camera: Some(Camera {
+            eye: DVec3::new(0.0, 2.5, 1.5),
+            target: DVec3::ZERO,
+            up: DVec3::Y,
+            fov_y_degrees: 40.0,
+        }),
+        video: VideoMode::None,
+        ..gif_opts()
+    };
+    let report = render_run(dir.path(), &opts).unwrap();
+    let img = Image::read_png(&report.frames[0]).unwrap();
+    let w = img.width;
+    let (left, right) = (median_hue(&img, 0..w / 2), median_hue(&img, w / 2..w));
+    let apart = (left - right).abs().min(360.0 - (left - right).abs());
+    assert!(
+        apart > 60.0,
+        "left cloth hue {left:.0}°, right cloth hue {right:.0}°: too alike"
+    );
 }
 
 #[test]
