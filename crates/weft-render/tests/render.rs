@@ -198,6 +198,80 @@ fn a_near_triangle_hides_a_far_one_in_either_drawing_order() {
     }
 }
 
+/// Whether `pixels` form one 8-connected set.
+fn connected(pixels: &[(i64, i64)]) -> bool {
+    let set: std::collections::HashSet<(i64, i64)> = pixels.iter().copied().collect();
+    let mut seen = std::collections::HashSet::new();
+    let mut stack: Vec<(i64, i64)> = pixels.first().copied().into_iter().collect();
+    while let Some((x, y)) = stack.pop() {
+        if !seen.insert((x, y)) {
+            continue;
+        }
+        for (dx, dy) in (-1..=1).flat_map(|dx| (-1..=1).map(move |dy| (dx, dy))) {
+            if set.contains(&(x + dx, y + dy)) {
+                stack.push((x + dx, y + dy));
+            }
+        }
+    }
+    seen.len() == set.len()
+}
+
+#[test]
+fn a_ribbon_seen_edge_on_is_a_continuous_line() {
+    let camera = Camera {
+        eye: DVec3::new(0.0, 0.0, 5.0),
+        target: DVec3::ZERO,
+        up: DVec3::Y,
+        fov_y_degrees: 40.0,
+    };
+    let (w, h) = (200u32, 150u32);
+    let mut r = Rasterizer::new(w, h, 3);
+    let empty = r.render(&[], &[], &[], &camera).clone();
+    // A strip of 40 segments, 2 long and 0.1 wide: its length runs along
+    // `along` (across the image: level, then slanted), its width towards
+    // the eye, so the eye lies in its plane; last turned by `tilt` radians
+    // about its length, so that it is a tenth of a pixel wide on screen.
+    let slanted = DVec3::new(1.0, 0.35, 0.0).normalize();
+    for (along, tilt) in [(DVec3::X, 0.0), (slanted, 0.0), (slanted, 0.025f64)] {
+        let across = tilt.cos() * DVec3::Z + tilt.sin() * along.cross(DVec3::Z);
+        let mut x = Vec::new();
+        for i in 0..=40 {
+            let s = -1.0 + i as f64 / 20.0;
+            x.push(s * along - 0.05 * across);
+            x.push(s * along + 0.05 * across);
+        }
+        let t: Vec<[u32; 3]> = (0..40u32)
+            .flat_map(|i| [[2 * i, 2 * i + 2, 2 * i + 3], [2 * i, 2 * i + 3, 2 * i + 1]])
+            .collect();
+        let img = r.render(&x, &t, &vec![Surface::Cloth(0); t.len()], &camera);
+        let drawn: Vec<(i64, i64)> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .filter(|&(x, y)| img.pixel(x, y) != empty.pixel(x, y))
+            .map(|(x, y)| (x as i64, y as i64))
+            .collect();
+        assert!(!drawn.is_empty(), "{along}: nothing drawn");
+        assert!(connected(&drawn), "{along}: the line is broken into pieces");
+        // From one projected end to the other (the ends are about 40 pixels
+        // left and right of the centre), and a line, not a smear.
+        let end = 206.0 * along.x / 5.0;
+        let (x0, x1) = (
+            drawn.iter().map(|p| p.0).min().unwrap(),
+            drawn.iter().map(|p| p.0).max().unwrap(),
+        );
+        let centre = (w / 2) as f64;
+        assert!(
+            (x0 as f64 - (centre - end)).abs() <= 2.0 && (x1 as f64 - (centre + end)).abs() <= 2.0,
+            "{along}: drawn from column {x0} to {x1}, the strip spans {:.0} to {:.0}",
+            centre - end,
+            centre + end
+        );
+        for col in x0..=x1 {
+            let n = drawn.iter().filter(|p| p.0 == col).count();
+            assert!((1..=3).contains(&n), "{along}: column {col} has {n} pixels");
+        }
+    }
+}
+
 #[test]
 fn a_fitted_camera_centres_a_unit_sphere() {
     let (x, t) = sphere(DVec3::new(3.0, -2.0, 7.0), 1.0, 24, 48);
