@@ -689,3 +689,64 @@ fn a_malformed_stats_line_is_reported_with_file_and_line() {
     let e = plot_stats(&dir.path().join("absent.jsonl"), dir.path()).unwrap_err();
     assert!(e.to_string().contains("absent.jsonl"), "{e}");
 }
+
+#[test]
+fn the_legend_stays_clear_of_curves_that_fill_its_usual_corner() {
+    use weft_render::chart::{draw_chart, Chart, Panel, Series, Style};
+    // Level and low on the left, a dense wiggle from 0 to 1 on the right:
+    // curves fill the top right, where the legend used to go, and both
+    // bottom corners; the top left is free.
+    let points = (0..=800)
+        .map(|i| {
+            let x = i as f64 / 800.0;
+            let y = if x < 0.5 {
+                0.15
+            } else {
+                0.5 + 0.5 * (300.0 * x).sin()
+            };
+            (x, y)
+        })
+        .collect();
+    let curve = Series {
+        name: "kinetic".into(),
+        color: [31, 119, 180],
+        points,
+        style: Style::Line,
+    };
+    // A second series with no finite point: it is listed in the legend but
+    // changes neither the axes nor the curves.
+    let unplotted = Series {
+        name: "contact".into(),
+        color: [255, 127, 14],
+        points: vec![(f64::NAN, f64::NAN)],
+        style: Style::Line,
+    };
+    let chart = |series| Chart {
+        title: "Energy".into(),
+        x_label: "simulated time (s)".into(),
+        panels: vec![Panel {
+            title: "energy (J)".into(),
+            series,
+        }],
+    };
+    let with_legend = draw_chart(&chart(vec![curve.clone(), unplotted]), 1000);
+    let without = draw_chart(&chart(vec![curve]), 1000);
+    assert_eq!(
+        (with_legend.width, with_legend.height),
+        (without.width, without.height)
+    );
+    // The two charts differ only where the legend is; there, the chart
+    // without it must show no curve (a coloured pixel).
+    let coloured = |p: [u8; 3]| p.iter().max().unwrap() - p.iter().min().unwrap() > 20;
+    let (mut legend, mut hidden) = (0, 0);
+    for y in 0..without.height {
+        for x in 0..without.width {
+            if with_legend.pixel(x, y) != without.pixel(x, y) {
+                legend += 1;
+                hidden += usize::from(coloured(without.pixel(x, y)));
+            }
+        }
+    }
+    assert!(legend > 1000, "no legend drawn ({legend} pixels differ)");
+    assert_eq!(hidden, 0, "the legend hides {hidden} pixels of the curve");
+}
