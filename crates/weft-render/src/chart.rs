@@ -319,7 +319,12 @@ fn layout(chart: &Chart, width: u32) -> Layout {
     // A legend that fits in no corner goes beside its plot; every plot then
     // makes room for the widest legend, so the panels' x axes stay aligned.
     if crowded(&corners) {
-        let widest = legend_sizes.iter().flatten().map(|s| s.0).max().unwrap_or(0);
+        let widest = legend_sizes
+            .iter()
+            .flatten()
+            .map(|s| s.0)
+            .max()
+            .unwrap_or(0);
         right = (right - widest - LEGEND_INSET).max(left + MIN_PLOT_WIDTH);
         areas = areas_for(right);
         corners = free_corners(&areas);
@@ -597,7 +602,10 @@ mod tests {
             panic!("both panels have a legend")
         };
         // Beside the first plot, within the image; the plots keep one width.
-        assert!(beside.x0 > a0.right && beside.x1 <= width as i64, "{beside:?}");
+        assert!(
+            beside.x0 > a0.right && beside.x1 <= width as i64,
+            "{beside:?}"
+        );
         assert!((a0.left, a0.right) == (a1.left, a1.right));
         assert!(a0.right < width as i64 - 24 - (beside.x1 - beside.x0));
         // The second legend fits in a corner of its own plot.
