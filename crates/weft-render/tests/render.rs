@@ -182,8 +182,14 @@ fn a_near_triangle_hides_a_far_one_in_either_drawing_order() {
     let x: Vec<DVec3> = near.iter().chain(&far).copied().collect();
     let mut r = Rasterizer::new(64, 64, 2);
     for (tris, surfaces) in [
-        ([[0, 1, 2], [3, 4, 5]], [Surface::Cloth(0), Surface::Obstacle]),
-        ([[3, 4, 5], [0, 1, 2]], [Surface::Obstacle, Surface::Cloth(0)]),
+        (
+            [[0, 1, 2], [3, 4, 5]],
+            [Surface::Cloth(0), Surface::Obstacle],
+        ),
+        (
+            [[3, 4, 5], [0, 1, 2]],
+            [Surface::Obstacle, Surface::Cloth(0)],
+        ),
     ] {
         let img = r.render(&x, &tris, &surfaces, &camera);
         let c = img.pixel(32, 34);
@@ -358,11 +364,21 @@ fn render_run_writes_pngs_and_a_gif_with_every_frame() {
     assert!(names.iter().all(|n| !n.ends_with(".tmp")), "{names:?}");
 }
 
+fn frame_pngs(dir: &Path, frames: &[u32]) -> Vec<PathBuf> {
+    frames
+        .iter()
+        .map(|k| dir.join(format!("frame_{k:05}.png")))
+        .collect()
+}
+
 #[test]
-fn every_kth_frame_replaces_an_earlier_render() {
+fn a_second_render_overwrites_its_frames_and_keeps_the_others() {
     let dir = tempfile::tempdir().unwrap();
     write_run(dir.path(), 7, 8);
+    let render = dir.path().join("render");
     render_run(dir.path(), &gif_opts()).unwrap();
+    // Frame 0 will be written again: spoil it to see that it is replaced.
+    std::fs::write(render.join("frame_00000.png"), b"old").unwrap();
     let opts = RenderOptions {
         every: 3,
         video: VideoMode::None,
@@ -372,17 +388,119 @@ fn every_kth_frame_replaces_an_earlier_render() {
     assert_eq!(report.preview, None);
     assert_eq!(report.video, VideoMode::None);
     assert!((report.fps - 10.0).abs() < 1e-9);
-    let mut left: Vec<PathBuf> = std::fs::read_dir(dir.path().join("render"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    left.sort();
-    let want: Vec<PathBuf> = [0, 3, 6]
+    assert_eq!(report.frames_dir, render);
+    assert_eq!(report.frames, frame_pngs(&render, &[0, 3, 6]));
+    Image::read_png(&render.join("frame_00000.png")).expect("frame 0 rewritten");
+    // The first render's other frames and its GIF are kept, and reported.
+    assert_eq!(report.earlier_frames, frame_pngs(&render, &[1, 2, 4, 5]));
+    for k in 0..7 {
+        assert!(
+            render.join(format!("frame_{k:05}.png")).is_file(),
+            "frame {k}"
+        );
+    }
+    assert!(dir.path().join("preview.gif").is_file());
+    let warnings = report.warnings.join("\n");
+    assert!(
+        warnings.contains("4 frame PNGs")
+            && warnings.contains("frame_00001.png to frame_00005.png"),
+        "{warnings}"
+    );
+    assert!(
+        warnings.contains("preview.gif is from an earlier render"),
+        "{warnings}"
+    );
+
+    // A run with fewer frames than the last render (here, cut back to 3):
+    // the frames beyond stay, and the report says so.
+    let frames = dir.path().join("frames.jsonl");
+    let text = std::fs::read_to_string(&frames).unwrap();
+    let first3: String = text.lines().take(3).map(|l| format!("{l}\n")).collect();
+    std::fs::write(&frames, first3).unwrap();
+    let report = render_run(
+        dir.path(),
+        &RenderOptions {
+            video: VideoMode::None,
+            ..gif_opts()
+        },
+    )
+    .unwrap();
+    assert_eq!(report.frames, frame_pngs(&render, &[0, 1, 2]));
+    assert_eq!(report.earlier_frames, frame_pngs(&render, &[3, 4, 5, 6]));
+    assert!(
+        report
+            .warnings
+            .iter()
+            .any(|w| w.contains("4 frame PNGs") && w.contains("frame_00003.png to frame_00006.png")),
+        "{:?}",
+        report.warnings
+    );
+}
+
+#[test]
+fn a_render_into_another_folder_leaves_the_run_folder_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    write_run(&run, 3, 6);
+    render_run(&run, &gif_opts()).unwrap();
+    let before: Vec<Vec<u8>> = frame_pngs(&run.join("render"), &[0, 1, 2])
         .iter()
-        .map(|k| dir.path().join(format!("render/frame_{k:05}.png")))
+        .map(|p| std::fs::read(p).unwrap())
         .collect();
-    assert_eq!(left, want);
-    assert_eq!(report.frames, want);
+    let gif_before = std::fs::read(run.join("preview.gif")).unwrap();
+
+    let out = dir.path().join("renders/wide");
+    let opts = RenderOptions {
+        width: 200,
+        out: Some(out.clone()),
+        ..gif_opts()
+    };
+    let report = render_run(&run, &opts).unwrap();
+    assert_eq!(report.frames_dir, out);
+    assert_eq!(report.frames, frame_pngs(&out, &[0, 1, 2]));
+    assert_eq!(report.preview, Some(out.join("preview.gif")));
+    assert_eq!(gif_frames(&out.join("preview.gif")).0, 200);
+    assert!(report.earlier_frames.is_empty() && report.warnings.is_empty());
+    // The run folder's own render is untouched.
+    let after: Vec<Vec<u8>> = frame_pngs(&run.join("render"), &[0, 1, 2])
+        .iter()
+        .map(|p| std::fs::read(p).unwrap())
+        .collect();
+    assert!(before == after, "DIR/render changed");
+    assert!(std::fs::read(run.join("preview.gif")).unwrap() == gif_before);
+}
+
+#[test]
+fn a_run_still_writing_frames_jsonl_renders_its_complete_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    write_run(dir.path(), 4, 6);
+    // The run is writing frame 4's line: half of it is there, no newline.
+    let frames = dir.path().join("frames.jsonl");
+    let mut text = std::fs::read_to_string(&frames).unwrap();
+    text.push_str("{\"frame\":4,\"file\":\"frames/frame_000");
+    std::fs::write(&frames, &text).unwrap();
+    let opts = RenderOptions {
+        video: VideoMode::None,
+        ..gif_opts()
+    };
+    let report = render_run(dir.path(), &opts).unwrap();
+    assert_eq!(report.frames.len(), 4);
+    assert!(
+        report
+            .warnings
+            .iter()
+            .any(|w| w.contains("frames.jsonl:5:") && w.contains("incomplete last line")),
+        "{:?}",
+        report.warnings
+    );
+    // A whole line that is malformed is still an error, last or not.
+    text.push_str("04.ply\",\"time\":\"soon\"}\n");
+    std::fs::write(&frames, &text).unwrap();
+    let e = render_run(dir.path(), &opts).unwrap_err().to_string();
+    assert!(
+        e.contains("frames.jsonl:5:") && e.contains("malformed"),
+        "{e}"
+    );
 }
 
 #[test]
