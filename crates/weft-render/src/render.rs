@@ -266,30 +266,12 @@ pub fn render_run(dir: &Path, opts: &RenderOptions) -> Result<RenderReport, Rend
         }
     }
     let earlier_frames = earlier_frames(&out_dir, &frames);
-    if let (Some(first), Some(last)) = (earlier_frames.first(), earlier_frames.last()) {
-        let name = |p: &Path| {
-            p.file_name()
-                .unwrap_or_default()
-                .to_string_lossy()
-                .into_owned()
-        };
-        warnings.push(format!(
-            "{} holds {} frame PNGs of an earlier render that this one did not write \
-             ({} to {}); they were left in place",
-            out_dir.display(),
-            earlier_frames.len(),
-            name(first),
-            name(last)
-        ));
-    }
-    for old in [&gif_path, &mp4_path] {
-        if old.exists() && preview.as_ref() != Some(old) {
-            warnings.push(format!(
-                "{} is from an earlier render; it was left in place",
-                old.display()
-            ));
-        }
-    }
+    warnings.extend(earlier_render_warnings(
+        &out_dir,
+        &earlier_frames,
+        &[&gif_path, &mp4_path],
+        preview.as_deref(),
+    ));
     Ok(RenderReport {
         frames_dir: out_dir,
         frames,
@@ -494,6 +476,43 @@ fn gif_from_pngs(pngs: &[PathBuf], path: &Path, delay: u16) -> Result<PathBuf, R
         gif.push(&palette.encode_frame(&img, delay))?;
     }
     gif.finish()
+}
+
+/// What to tell about the files of an earlier render left in place: the
+/// `earlier` frames in `out_dir`, and each of `previews` that exists but is
+/// not the one `written`.
+fn earlier_render_warnings(
+    out_dir: &Path,
+    earlier: &[PathBuf],
+    previews: &[&Path],
+    written: Option<&Path>,
+) -> Vec<String> {
+    let mut warnings = Vec::new();
+    if let (Some(first), Some(last)) = (earlier.first(), earlier.last()) {
+        let name = |p: &Path| {
+            p.file_name()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned()
+        };
+        warnings.push(format!(
+            "{} holds {} frame PNGs of an earlier render that this one did not write \
+             ({} to {}); they were left in place",
+            out_dir.display(),
+            earlier.len(),
+            name(first),
+            name(last)
+        ));
+    }
+    for &old in previews {
+        if old.exists() && written != Some(old) {
+            warnings.push(format!(
+                "{} is from an earlier render; it was left in place",
+                old.display()
+            ));
+        }
+    }
+    warnings
 }
 
 /// The `frame_*.png` files in `out_dir` that are not in `written` (an
