@@ -152,13 +152,8 @@ fn render_takes_a_camera_a_stride_and_no_video() {
         "50",
     ]);
     assert_eq!(code, ExitCode::SUCCESS);
-    let mut names: Vec<String> = std::fs::read_dir(dir.path().join("render"))
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    names.sort();
     assert_eq!(
-        names,
+        names_in(&dir.path().join("render")),
         ["frame_00000.png", "frame_00002.png", "frame_00004.png"]
     );
     assert!(!dir.path().join("preview.gif").exists());
@@ -172,6 +167,84 @@ fn render_takes_a_camera_a_stride_and_no_video() {
     assert_eq!(bad_mode, ExitCode::from(2));
     let bad_size = weft(&["render", s(dir.path()), "--width", "0", "--video", "none"]);
     assert_eq!(bad_size, ExitCode::from(1));
+}
+
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+#[test]
+fn render_takes_an_output_folder_and_never_deletes_earlier_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    write_run(&run, 5);
+    let small = ["--width", "64", "--height", "48"];
+    let render = |extra: &[&str]| {
+        let mut args = vec!["render", s(&run)];
+        args.extend(small);
+        args.extend(extra);
+        weft(&args)
+    };
+    assert_eq!(render(&["--video", "none"]), ExitCode::SUCCESS);
+    let all: Vec<String> = (0..5).map(|k| format!("frame_{k:05}.png")).collect();
+    assert_eq!(names_in(&run.join("render")), all);
+
+    // Into another folder: every other frame and the GIF there, the run
+    // folder's render untouched.
+    let out = dir.path().join("out");
+    let code = render(&["--out", s(&out), "--every", "2", "--video", "gif"]);
+    assert_eq!(code, ExitCode::SUCCESS);
+    assert_eq!(
+        names_in(&out),
+        [
+            "frame_00000.png",
+            "frame_00002.png",
+            "frame_00004.png",
+            "preview.gif"
+        ]
+    );
+    assert_eq!(names_in(&run.join("render")), all);
+    assert!(!run.join("preview.gif").exists());
+
+    // Every other frame into the default folder again: the frames it does
+    // not write stay.
+    assert_eq!(
+        render(&["--every", "2", "--video", "none"]),
+        ExitCode::SUCCESS
+    );
+    assert_eq!(names_in(&run.join("render")), all);
+}
+
+#[test]
+fn render_works_on_a_run_still_writing_its_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    write_run(dir.path(), 4);
+    // Frame 4's line is half written, as by a run in progress.
+    let frames = dir.path().join("frames.jsonl");
+    let mut text = std::fs::read_to_string(&frames).unwrap();
+    text.push_str("{\"frame\":4,\"file\":\"fra");
+    std::fs::write(&frames, text).unwrap();
+    let out = dir.path().join("now");
+    let code = weft(&[
+        "render",
+        s(dir.path()),
+        "--out",
+        s(&out),
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--video",
+        "none",
+    ]);
+    assert_eq!(code, ExitCode::SUCCESS);
+    let want: Vec<String> = (0..4).map(|k| format!("frame_{k:05}.png")).collect();
+    assert_eq!(names_in(&out), want);
 }
 
 #[test]

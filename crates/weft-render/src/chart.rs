@@ -1,6 +1,6 @@
 //! Line charts drawn into an [`Image`]: stacked panels sharing an x axis,
 //! nice tick values (1-2-5 steps), labels in the built-in font, anti-aliased
-//! lines and a legend.
+//! lines and a legend placed where it hides no curve.
 
 use crate::font::{draw_text, text_width, CAP_HEIGHT};
 use crate::image::Image;
@@ -183,19 +183,74 @@ fn range(points: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
 }
 
 /// Draws `chart` `width` pixels wide; the height follows from the number of
-/// panels.
+/// panels. A panel with more than one series gets a legend, in the first
+/// corner of its plot (top right, top left, bottom right, bottom left) that
+/// no curve passes through, or else to the right of the plot.
 pub fn draw_chart(chart: &Chart, width: u32) -> Image {
+    let layout = layout(chart, width);
+    let mut img = Image::new(width, layout.height, BACKGROUND);
+    let tw = text_width(&chart.title, T) as i64;
+    draw_text(&mut img, (width as i64 - tw) / 2, 16, &chart.title, T, INK);
+    for ((panel, area), legend) in chart.panels.iter().zip(&layout.areas).zip(&layout.legends) {
+        let title_y = area.top - (LABEL_LINE + 8) as i64;
+        draw_text(&mut img, area.left, title_y, &panel.title, S, INK);
+        draw_axes(&mut img, area);
+        draw_series(&mut img, area, &panel.series);
+        if let Some(r) = legend {
+            draw_legend(&mut img, r, &panel.series);
+        }
+    }
+    let (left, right) = (layout.left, layout.right);
+    let lw = text_width(&chart.x_label, S) as i64;
+    draw_text(
+        &mut img,
+        left + (right - left - lw) / 2,
+        layout.x_label_y,
+        &chart.x_label,
+        S,
+        INK,
+    );
+    img
+}
+
+/// Where the parts of a chart go.
+struct Layout {
+    height: u32,
+    /// Left and right edges of every plot.
+    left: i64,
+    right: i64,
+    /// Each panel's plot.
+    areas: Vec<Area>,
+    /// Each panel's legend, if it has one.
+    legends: Vec<Option<Rect>>,
+    x_label_y: i64,
+}
+
+/// Height of a line of labels.
+const LABEL_LINE: u32 = 10 * S;
+/// Space between a legend and the plot frame, or a plot and a legend beside
+/// it.
+const LEGEND_INSET: i64 = 10;
+/// Curves keep at least this far from a legend placed inside a plot.
+const LEGEND_CLEARANCE: i64 = 4;
+/// Length of the line sample in front of each name of a legend.
+const LEGEND_SAMPLE: i64 = 28;
+/// A plot is never narrowed below this width to make room for a legend.
+const MIN_PLOT_WIDTH: i64 = 200;
+
+/// The layout of `chart` drawn `width` pixels wide: panels stacked under the
+/// title, plots sharing their left and right edges, and each legend in a
+/// free corner of its plot or beside it.
+fn layout(chart: &Chart, width: u32) -> Layout {
     let n = chart.panels.len().max(1) as u32;
     let plot_h: u32 = match n {
         1 => 380,
         2 => 250,
         _ => 200,
     };
-    let line = 10 * S; // label line height
     let title_block = 16 + 9 * T + 12;
-    let panel_block = line + 8 + plot_h + 8 + line + 12;
-    let height = title_block + n * panel_block + line + 16;
-    let mut img = Image::new(width, height, BACKGROUND);
+    let panel_block = LABEL_LINE + 8 + plot_h + 8 + LABEL_LINE + 12;
+    let height = title_block + n * panel_block + LABEL_LINE + 16;
 
     let all = chart.panels.iter().flat_map(|p| &p.series);
     let x_axis = match range(all.flat_map(|s| s.points.iter().map(|p| p.0))) {
@@ -219,49 +274,97 @@ pub fn draw_chart(chart: &Chart, width: u32) -> Image {
         .max()
         .unwrap_or(0);
     let left = (16 + label_w + 12) as i64;
-    let right = width as i64 - 24;
-
-    let tw = text_width(&chart.title, T) as i64;
-    draw_text(&mut img, (width as i64 - tw) / 2, 16, &chart.title, T, INK);
-
-    for (k, (panel, y_axis)) in chart.panels.iter().zip(&y_axes).enumerate() {
-        let top0 = (title_block + k as u32 * panel_block) as i64;
-        draw_text(&mut img, left, top0, &panel.title, S, INK);
-        let top = top0 + (line + 8) as i64;
-        let bottom = top + plot_h as i64;
-        let area = Area {
-            left,
-            right,
-            top,
-            bottom,
-            x: x_axis,
-            y: *y_axis,
-        };
-        draw_axes(&mut img, &area);
-        for s in &panel.series {
-            match s.style {
-                Style::Line => draw_polyline(&mut img, &area, &s.points, s.color),
-                Style::Stems => draw_stems(&mut img, &area, &s.points, s.color),
-            }
-        }
-        if panel.series.len() > 1 {
-            draw_legend(&mut img, &area, &panel.series);
-        }
+    let areas_for = |right: i64| -> Vec<Area> {
+        (0..chart.panels.len())
+            .map(|k| {
+                let top = (title_block + k as u32 * panel_block + LABEL_LINE + 8) as i64;
+                Area {
+                    left,
+                    right,
+                    top,
+                    bottom: top + plot_h as i64,
+                    x: x_axis,
+                    y: y_axes[k],
+                }
+            })
+            .collect()
+    };
+    let legend_sizes: Vec<Option<(i64, i64)>> = chart
+        .panels
+        .iter()
+        .map(|p| (p.series.len() > 1).then(|| legend_size(&p.series)))
+        .collect();
+    // The free corner for each legend, found by drawing its panel's curves.
+    let free_corners = |areas: &[Area]| -> Vec<Option<Rect>> {
+        areas
+            .iter()
+            .zip(&chart.panels)
+            .zip(&legend_sizes)
+            .map(|((area, panel), size)| {
+                let mut curves = Image::new(width, height, BACKGROUND);
+                draw_series(&mut curves, area, &panel.series);
+                free_corner(&curves, area, (*size)?)
+            })
+            .collect()
+    };
+    let mut right = width as i64 - 24;
+    let mut areas = areas_for(right);
+    let mut corners = free_corners(&areas);
+    let crowded = |corners: &[Option<Rect>]| {
+        legend_sizes
+            .iter()
+            .zip(corners)
+            .any(|(size, corner)| size.is_some() && corner.is_none())
+    };
+    // A legend that fits in no corner goes beside its plot; every plot then
+    // makes room for the widest legend, so the panels' x axes stay aligned.
+    if crowded(&corners) {
+        let widest = legend_sizes
+            .iter()
+            .flatten()
+            .map(|s| s.0)
+            .max()
+            .unwrap_or(0);
+        right = (right - widest - LEGEND_INSET).max(left + MIN_PLOT_WIDTH);
+        areas = areas_for(right);
+        corners = free_corners(&areas);
     }
-    let lw = text_width(&chart.x_label, S) as i64;
-    let y = (title_block + n * panel_block) as i64;
-    draw_text(
-        &mut img,
-        left + (right - left - lw) / 2,
-        y,
-        &chart.x_label,
-        S,
-        INK,
-    );
-    img
+    let legends = legend_sizes
+        .iter()
+        .zip(&corners)
+        .zip(&areas)
+        .map(|((size, corner), area)| {
+            let (w, h) = (*size)?;
+            let beside = Rect {
+                x0: right + LEGEND_INSET,
+                y0: area.top,
+                x1: right + LEGEND_INSET + w,
+                y1: area.top + h,
+            };
+            Some(corner.unwrap_or(beside))
+        })
+        .collect();
+    Layout {
+        height,
+        left,
+        right,
+        areas,
+        legends,
+        x_label_y: (title_block + n * panel_block) as i64,
+    }
+}
+
+/// A rectangle of pixels `[x0, x1) × [y0, y1)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Rect {
+    x0: i64,
+    y0: i64,
+    x1: i64,
+    y1: i64,
 }
 
 /// A plot area in pixels and the axes it maps.
+#[derive(Clone, Copy, Debug)]
 struct Area {
     left: i64,
     right: i64,
@@ -384,34 +487,136 @@ fn draw_stems(img: &mut Image, a: &Area, points: &[(f64, f64)], color: [u8; 3]) 
     }
 }
 
-fn draw_legend(img: &mut Image, a: &Area, series: &[Series]) {
-    let line = (10 * S) as i64;
-    let sample = 28i64;
+/// Draws each series in its style.
+fn draw_series(img: &mut Image, a: &Area, series: &[Series]) {
+    for s in series {
+        match s.style {
+            Style::Line => draw_polyline(img, a, &s.points, s.color),
+            Style::Stems => draw_stems(img, a, &s.points, s.color),
+        }
+    }
+}
+
+/// Width and height of the legend of `series`: a line per series.
+fn legend_size(series: &[Series]) -> (i64, i64) {
     let w = series
         .iter()
         .map(|s| text_width(&s.name, S) as i64)
         .max()
         .unwrap_or(0)
-        + sample
+        + LEGEND_SAMPLE
         + 28;
-    let h = series.len() as i64 * line + 12;
-    let (x0, y0) = (a.right - 10 - w, a.top + 10);
-    img.fill_rect(x0, y0, x0 + w, y0 + h, BACKGROUND);
-    img.fill_rect(x0, y0, x0 + w, y0 + 1, FRAME);
-    img.fill_rect(x0, y0 + h - 1, x0 + w, y0 + h, FRAME);
-    img.fill_rect(x0, y0, x0 + 1, y0 + h, FRAME);
-    img.fill_rect(x0 + w - 1, y0, x0 + w, y0 + h, FRAME);
+    (w, series.len() as i64 * LABEL_LINE as i64 + 12)
+}
+
+/// The first corner of plot `a` (top right, top left, bottom right, bottom
+/// left) where a legend of `size` leaves every curve in `img` (the curves
+/// alone, on the background) at least [`LEGEND_CLEARANCE`] away; `None` when curves pass through all four (or
+/// the plot is too small).
+fn free_corner(img: &Image, a: &Area, (w, h): (i64, i64)) -> Option<Rect> {
+    let (l, r) = (a.left + LEGEND_INSET, a.right - LEGEND_INSET - w);
+    let (t, b) = (a.top + LEGEND_INSET, a.bottom - LEGEND_INSET - h);
+    [(r, t), (l, t), (r, b), (l, b)]
+        .into_iter()
+        .map(|(x0, y0)| Rect {
+            x0,
+            y0,
+            x1: x0 + w,
+            y1: y0 + h,
+        })
+        .find(|box_| {
+            let c = LEGEND_CLEARANCE;
+            let inside = box_.x0 - c > a.left
+                && box_.x1 + c <= a.right
+                && box_.y0 - c > a.top
+                && box_.y1 + c <= a.bottom;
+            inside && blank(img, box_.x0 - c, box_.y0 - c, box_.x1 + c, box_.y1 + c)
+        })
+}
+
+/// Whether `[x0, x1) × [y0, y1)` (inside `img`) is all background.
+fn blank(img: &Image, x0: i64, y0: i64, x1: i64, y1: i64) -> bool {
+    (y0..y1).all(|y| (x0..x1).all(|x| img.pixel(x as u32, y as u32) == BACKGROUND))
+}
+
+fn draw_legend(img: &mut Image, r: &Rect, series: &[Series]) {
+    let line = LABEL_LINE as i64;
+    let (x0, y0, x1, y1) = (r.x0, r.y0, r.x1, r.y1);
+    img.fill_rect(x0, y0, x1, y1, BACKGROUND);
+    img.fill_rect(x0, y0, x1, y0 + 1, FRAME);
+    img.fill_rect(x0, y1 - 1, x1, y1, FRAME);
+    img.fill_rect(x0, y0, x0 + 1, y1, FRAME);
+    img.fill_rect(x1 - 1, y0, x1, y1, FRAME);
     for (i, s) in series.iter().enumerate() {
         let y = y0 + 7 + i as i64 * line;
         let mid = y + (CAP_HEIGHT * S) as i64 / 2;
-        img.fill_rect(x0 + 8, mid - 1, x0 + 8 + sample, mid + 1, s.color);
-        draw_text(img, x0 + 16 + sample, y, &s.name, S, INK);
+        img.fill_rect(x0 + 8, mid - 1, x0 + 8 + LEGEND_SAMPLE, mid + 1, s.color);
+        draw_text(img, x0 + 16 + LEGEND_SAMPLE, y, &s.name, S, INK);
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn line(name: &str, color: [u8; 3], f: impl Fn(f64) -> f64) -> Series {
+        let points = (0..=800)
+            .map(|i| {
+                let x = i as f64 / 800.0;
+                (x, f(x))
+            })
+            .collect();
+        Series {
+            name: name.into(),
+            color,
+            points,
+            style: Style::Line,
+        }
+    }
+
+    #[test]
+    fn a_legend_with_no_free_corner_goes_beside_the_plot() {
+        // A dense wiggle from 0 to 1 fills all four corners of the first
+        // panel; the second panel's curves leave its top left free.
+        let wiggle = line("wiggle", COLORS[0], |x| 0.5 + 0.5 * (300.0 * x).sin());
+        let level = line("level", COLORS[1], |_| 0.5);
+        let low = line("low", COLORS[2], |_| 0.1);
+        let chart = Chart {
+            title: "crowded".into(),
+            x_label: "x".into(),
+            panels: vec![
+                Panel {
+                    title: "both".into(),
+                    series: vec![wiggle, level.clone()],
+                },
+                Panel {
+                    title: "calm".into(),
+                    series: vec![level, low],
+                },
+            ],
+        };
+        let width = 1000;
+        let l = layout(&chart, width);
+        let [a0, a1] = [l.areas[0], l.areas[1]];
+        let [Some(beside), Some(inside)] = [l.legends[0], l.legends[1]] else {
+            panic!("both panels have a legend")
+        };
+        // Beside the first plot, within the image; the plots keep one width.
+        assert!(
+            beside.x0 > a0.right && beside.x1 <= width as i64,
+            "{beside:?}"
+        );
+        assert!((a0.left, a0.right) == (a1.left, a1.right));
+        assert!(a0.right < width as i64 - 24 - (beside.x1 - beside.x0));
+        // The second legend fits in a corner of its own plot.
+        assert!(inside.x0 > a1.left && inside.x1 < a1.right, "{inside:?}");
+        assert!(inside.y0 > a1.top && inside.y1 < a1.bottom, "{inside:?}");
+        // And the chart draws them there.
+        let img = draw_chart(&chart, width);
+        assert_eq!(img.height, l.height);
+        assert_eq!(img.pixel(beside.x0 as u32, beside.y0 as u32), FRAME);
+        assert_eq!(img.pixel(inside.x0 as u32, inside.y0 as u32), FRAME);
+    }
 
     #[test]
     fn nice_axes_use_1_2_5_steps() {

@@ -3,9 +3,10 @@
 //! Previews and plots of weft runs, with no GPU and no system libraries:
 //!
 //! * [`render_run`] reads a run folder written by `weft run`
-//!   (`frames.jsonl`, the PLY/OBJ frames, `objects.json`) and writes one PNG
-//!   per frame to `DIR/render/`, then `DIR/preview.mp4` through `ffmpeg` when
-//!   it is installed, or an animated `DIR/preview.gif` otherwise;
+//!   (`frames.jsonl`, the PLY/OBJ frames, `objects.json`), also while the run
+//!   is still writing it, and writes one PNG per frame to `DIR/render/`, then
+//!   `DIR/preview.mp4` through `ffmpeg` when it is installed, or an animated
+//!   `DIR/preview.gif` otherwise (or both into [`RenderOptions::out`]);
 //! * [`plot_stats`] draws `stats.jsonl` and `timing.jsonl` as PNG line charts
 //!   (energy, momentum, contacts, wall time);
 //! * the pieces are public for other uses: [`Rasterizer`] (a z-buffered,

@@ -55,6 +55,9 @@ pub struct RenderOptions {
     pub ffmpeg: PathBuf,
     /// Rendering threads; 0 (default) uses the available parallelism.
     pub threads: usize,
+    /// The folder for the PNG frames and the preview; `None` (default) puts
+    /// the frames in `DIR/render/` and the preview in `DIR`.
+    pub out: Option<PathBuf>,
 }
 
 impl Default for RenderOptions {
@@ -71,6 +74,7 @@ impl Default for RenderOptions {
             supersample: 3,
             ffmpeg: PathBuf::from("ffmpeg"),
             threads: 0,
+            out: None,
         }
     }
 }
@@ -78,10 +82,15 @@ impl Default for RenderOptions {
 /// What [`render_run`] wrote.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RenderReport {
-    /// The PNG frames, in frame order (`DIR/render/frame_NNNNN.png`, named by
-    /// the frame index of `frames.jsonl`).
+    /// The folder of the PNG frames.
+    pub frames_dir: PathBuf,
+    /// The PNG frames, in frame order (`frame_NNNNN.png` in `frames_dir`,
+    /// named by the frame index of `frames.jsonl`).
     pub frames: Vec<PathBuf>,
-    /// `DIR/preview.mp4` or `DIR/preview.gif`, if one was written.
+    /// Frame PNGs in `frames_dir` that this render did not write (an earlier
+    /// render's, left in place), in name order.
+    pub earlier_frames: Vec<PathBuf>,
+    /// `preview.mp4` or `preview.gif`, if one was written.
     pub preview: Option<PathBuf>,
     /// The preview written: [`VideoMode::Mp4`], [`VideoMode::Gif`] or
     /// [`VideoMode::None`].
@@ -92,8 +101,10 @@ pub struct RenderReport {
     pub fps: f64,
     pub width: u32,
     pub height: u32,
-    /// Things that went wrong without failing the render, e.g. ffmpeg failing
-    /// in [`VideoMode::Auto`] (a GIF is written instead).
+    /// What the user should know although the render succeeded: ffmpeg
+    /// failing in [`VideoMode::Auto`] (a GIF is written instead), an
+    /// incomplete last line of `frames.jsonl` skipped, files of an earlier
+    /// render left beside this one's.
     pub warnings: Vec<String>,
     /// Wall-clock seconds of the whole call.
     pub seconds: f64,
@@ -129,15 +140,17 @@ struct Job<'a> {
     rgb: bool,
 }
 
-/// Renders the run folder `dir` (written by `weft run`) to
-/// `dir/render/frame_NNNNN.png`, one image per selected frame, then writes
-/// `dir/preview.mp4` (through ffmpeg) or `dir/preview.gif` as `opts.video`
-/// says. Cloth triangles (per `objects.json`; all triangles when it is
-/// missing) are drawn warm, obstacles grey.
+/// Renders the run folder `dir` (written by `weft run`, finished or still
+/// running) to `frame_NNNNN.png`, one image per selected frame, then writes
+/// `preview.mp4` (through ffmpeg) or `preview.gif` as `opts.video` says: all
+/// into `opts.out`, or by default the frames into `dir/render/` and the
+/// preview into `dir`. Cloth triangles (per `objects.json`; all triangles
+/// when it is missing) get one colour per cloth object, obstacles are grey.
 ///
-/// Old `frame_*.png` files in `dir/render` that this call did not write are
-/// removed, and so is the other preview format (`preview.gif` after writing
-/// `preview.mp4` and the reverse), so the folder never mixes two renders.
+/// Nothing is deleted: a file this call writes replaces the one of that
+/// name, and frame PNGs or a preview of an earlier render that it does not
+/// write stay where they are, listed in the report's warnings (and the
+/// frames in [`RenderReport::earlier_frames`]).
 ///
 /// Errors name the file (and line) at fault: a missing folder or
 /// `frames.jsonl`, a malformed line, an unreadable frame, an output that
@@ -171,8 +184,12 @@ pub fn render_run(dir: &Path, opts: &RenderOptions) -> Result<RenderReport, Rend
             .map(|r| whole_if_close(r / opts.every as f64))
             .unwrap_or(DEFAULT_FPS)
     });
-    let out_dir = dir.join("render");
+    let (out_dir, preview_dir) = match &opts.out {
+        Some(out) => (out.clone(), out.clone()),
+        None => (dir.join("render"), dir.to_path_buf()),
+    };
     std::fs::create_dir_all(&out_dir).map_err(|e| RenderError::io(&out_dir, e))?;
+    std::fs::create_dir_all(&preview_dir).map_err(|e| RenderError::io(&preview_dir, e))?;
 
     let palette = if video == VideoMode::Gif {
         Some(train_palette(&run, &selected, &camera, opts)?)
@@ -180,8 +197,14 @@ pub fn render_run(dir: &Path, opts: &RenderOptions) -> Result<RenderReport, Rend
         None
     };
     let mut warnings = Vec::new();
-    let gif_path = dir.join("preview.gif");
-    let mp4_path = dir.join("preview.mp4");
+    if let Some(line) = run.incomplete_last_line {
+        warnings.push(format!(
+            "{}:{line}: skipped an incomplete last line (is the run still writing it?)",
+            dir.join("frames.jsonl").display()
+        ));
+    }
+    let gif_path = preview_dir.join("preview.gif");
+    let mp4_path = preview_dir.join("preview.mp4");
     let mut gif = match &palette {
         Some(p) => Some(GifWriter::create(&gif_path, opts.width, opts.height, p)?),
         None => None,
@@ -242,14 +265,17 @@ pub fn render_run(dir: &Path, opts: &RenderOptions) -> Result<RenderReport, Rend
             Err(e) => return Err(e),
         }
     }
-    remove_stale(&out_dir, &frames);
-    match written {
-        VideoMode::Mp4 => remove_if_present(&gif_path),
-        VideoMode::Gif => remove_if_present(&mp4_path),
-        _ => {}
-    }
+    let earlier_frames = earlier_frames(&out_dir, &frames);
+    warnings.extend(earlier_render_warnings(
+        &out_dir,
+        &earlier_frames,
+        &[&gif_path, &mp4_path],
+        preview.as_deref(),
+    ));
     Ok(RenderReport {
+        frames_dir: out_dir,
         frames,
+        earlier_frames,
         preview,
         video: written,
         camera,
@@ -452,25 +478,63 @@ fn gif_from_pngs(pngs: &[PathBuf], path: &Path, delay: u16) -> Result<PathBuf, R
     gif.finish()
 }
 
-/// Removes `frame_*.png` files of earlier renders that this one did not write.
-fn remove_stale(out_dir: &Path, written: &[PathBuf]) {
-    let Ok(entries) = std::fs::read_dir(out_dir) else {
-        return;
-    };
-    let keep: HashSet<&std::ffi::OsStr> = written.iter().filter_map(|p| p.file_name()).collect();
-    for e in entries.flatten() {
-        let name = e.file_name();
-        let is_frame = name
-            .to_str()
-            .and_then(|n| n.strip_prefix("frame_"))
-            .and_then(|r| r.strip_suffix(".png"))
-            .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()));
-        if is_frame && !keep.contains(name.as_os_str()) {
-            let _ = std::fs::remove_file(e.path());
+/// What to tell about the files of an earlier render left in place: the
+/// `earlier` frames in `out_dir`, and each of `previews` that exists but is
+/// not the one `written`.
+fn earlier_render_warnings(
+    out_dir: &Path,
+    earlier: &[PathBuf],
+    previews: &[&Path],
+    written: Option<&Path>,
+) -> Vec<String> {
+    let mut warnings = Vec::new();
+    if let (Some(first), Some(last)) = (earlier.first(), earlier.last()) {
+        let name = |p: &Path| {
+            p.file_name()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned()
+        };
+        warnings.push(format!(
+            "{} holds {} frame PNGs of an earlier render that this one did not write \
+             ({} to {}); they were left in place",
+            out_dir.display(),
+            earlier.len(),
+            name(first),
+            name(last)
+        ));
+    }
+    for &old in previews {
+        if old.exists() && written != Some(old) {
+            warnings.push(format!(
+                "{} is from an earlier render; it was left in place",
+                old.display()
+            ));
         }
     }
+    warnings
 }
 
-fn remove_if_present(path: &Path) {
-    let _ = std::fs::remove_file(path);
+/// The `frame_*.png` files in `out_dir` that are not in `written` (an
+/// earlier render's), sorted by name.
+fn earlier_frames(out_dir: &Path, written: &[PathBuf]) -> Vec<PathBuf> {
+    let Ok(entries) = std::fs::read_dir(out_dir) else {
+        return Vec::new();
+    };
+    let written: HashSet<&std::ffi::OsStr> = written.iter().filter_map(|p| p.file_name()).collect();
+    let mut earlier: Vec<PathBuf> = entries
+        .flatten()
+        .filter(|e| {
+            let name = e.file_name();
+            let is_frame = name
+                .to_str()
+                .and_then(|n| n.strip_prefix("frame_"))
+                .and_then(|r| r.strip_suffix(".png"))
+                .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()));
+            is_frame && !written.contains(name.as_os_str())
+        })
+        .map(|e| e.path())
+        .collect();
+    earlier.sort();
+    earlier
 }

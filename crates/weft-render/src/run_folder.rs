@@ -1,5 +1,6 @@
 //! Reading a run folder written by `weft run`: `frames.jsonl`, the frame
-//! files it lists, and `objects.json` (which triangles are cloth).
+//! files it lists, and `objects.json` (which triangles belong to which
+//! object). The folder of a run still in progress reads too.
 
 use crate::error::RenderError;
 use crate::raster::Surface;
@@ -54,11 +55,17 @@ pub struct RunFolder {
     /// `None` when `objects.json` is absent (older runs): every triangle is
     /// then drawn as cloth.
     pub objects: Option<Vec<ObjectRange>>,
+    /// The (1-based) number of the last line of `frames.jsonl` when it was
+    /// skipped as incomplete: no newline at its end and not a whole record,
+    /// as while a run is still writing it.
+    pub incomplete_last_line: Option<usize>,
 }
 
 impl RunFolder {
     /// Reads `dir/frames.jsonl` and `dir/objects.json` (if present). Errors
-    /// name the file and, for a malformed line, the line.
+    /// name the file and, for a malformed line, the line; an incomplete last
+    /// line (a run still writing it) is skipped and noted in
+    /// [`RunFolder::incomplete_last_line`].
     pub fn open(dir: &Path) -> Result<RunFolder, RenderError> {
         if !dir.is_dir() {
             return Err(RenderError::format(
@@ -80,17 +87,28 @@ impl RunFolder {
             }
         })?;
         let mut frames = Vec::new();
-        for (i, line) in text.lines().enumerate() {
+        let mut incomplete_last_line = None;
+        let lines: Vec<&str> = text.lines().collect();
+        for (i, line) in lines.iter().enumerate() {
             if line.trim().is_empty() {
                 continue;
             }
-            let entry: FrameEntry = serde_json::from_str(line).map_err(|e| {
-                RenderError::format(
-                    &frames_path,
-                    Some(i + 1),
-                    format!("malformed frame record: {e}"),
-                )
-            })?;
+            let entry: FrameEntry = match serde_json::from_str(line) {
+                Ok(entry) => entry,
+                // A run appends a line per frame: the last one may be cut
+                // off mid-write while it runs. Only a whole line is an error.
+                Err(_) if i + 1 == lines.len() && !text.ends_with('\n') => {
+                    incomplete_last_line = Some(i + 1);
+                    continue;
+                }
+                Err(e) => {
+                    return Err(RenderError::format(
+                        &frames_path,
+                        Some(i + 1),
+                        format!("malformed frame record: {e}"),
+                    ))
+                }
+            };
             if entry.file.is_empty() || !entry.time.is_finite() {
                 return Err(RenderError::format(
                     &frames_path,
@@ -131,6 +149,7 @@ impl RunFolder {
             dir: dir.to_path_buf(),
             frames,
             objects,
+            incomplete_last_line,
         })
     }
 
@@ -175,10 +194,12 @@ impl RunFolder {
         })
     }
 
-    /// The surface of each of `num_triangles` triangles: from `objects.json`,
-    /// or all cloth without it. Triangles no object claims are cloth.
+    /// The surface of each of `num_triangles` triangles: from `objects.json`
+    /// (the k-th cloth object is `Surface::Cloth(k)`), or all the first cloth
+    /// without it. Triangles no object claims are the first cloth.
     pub fn surfaces(&self, num_triangles: usize) -> Result<Vec<Surface>, RenderError> {
-        let mut s = vec![Surface::Cloth; num_triangles];
+        let mut s = vec![Surface::Cloth(0); num_triangles];
+        let mut cloths = 0;
         for o in self.objects.iter().flatten() {
             let [a, b] = o.triangles;
             if b > num_triangles {
@@ -191,7 +212,10 @@ impl RunFolder {
                     ),
                 ));
             }
-            if !o.cloth {
+            if o.cloth {
+                s[a..b].fill(Surface::Cloth(cloths));
+                cloths += 1;
+            } else {
                 s[a..b].fill(Surface::Obstacle);
             }
         }

@@ -3,7 +3,7 @@
 
 use glam::DVec3;
 use std::path::{Path, PathBuf};
-use weft_render::raster::{BACKGROUND_TOP, CLOTH_FRONT, OBSTACLE};
+use weft_render::raster::{BACKGROUND_TOP, CLOTH_COLORS, OBSTACLE};
 use weft_render::{
     plot_stats, render_run, Camera, Image, Rasterizer, RenderError, RenderOptions, Surface,
     VideoMode,
@@ -182,8 +182,14 @@ fn a_near_triangle_hides_a_far_one_in_either_drawing_order() {
     let x: Vec<DVec3> = near.iter().chain(&far).copied().collect();
     let mut r = Rasterizer::new(64, 64, 2);
     for (tris, surfaces) in [
-        ([[0, 1, 2], [3, 4, 5]], [Surface::Cloth, Surface::Obstacle]),
-        ([[3, 4, 5], [0, 1, 2]], [Surface::Obstacle, Surface::Cloth]),
+        (
+            [[0, 1, 2], [3, 4, 5]],
+            [Surface::Cloth(0), Surface::Obstacle],
+        ),
+        (
+            [[3, 4, 5], [0, 1, 2]],
+            [Surface::Obstacle, Surface::Cloth(0)],
+        ),
     ] {
         let img = r.render(&x, &tris, &surfaces, &camera);
         let c = img.pixel(32, 34);
@@ -198,6 +204,80 @@ fn a_near_triangle_hides_a_far_one_in_either_drawing_order() {
     }
 }
 
+/// Whether `pixels` form one 8-connected set.
+fn connected(pixels: &[(i64, i64)]) -> bool {
+    let set: std::collections::HashSet<(i64, i64)> = pixels.iter().copied().collect();
+    let mut seen = std::collections::HashSet::new();
+    let mut stack: Vec<(i64, i64)> = pixels.first().copied().into_iter().collect();
+    while let Some((x, y)) = stack.pop() {
+        if !seen.insert((x, y)) {
+            continue;
+        }
+        for (dx, dy) in (-1..=1).flat_map(|dx| (-1..=1).map(move |dy| (dx, dy))) {
+            if set.contains(&(x + dx, y + dy)) {
+                stack.push((x + dx, y + dy));
+            }
+        }
+    }
+    seen.len() == set.len()
+}
+
+#[test]
+fn a_ribbon_seen_edge_on_is_a_continuous_line() {
+    let camera = Camera {
+        eye: DVec3::new(0.0, 0.0, 5.0),
+        target: DVec3::ZERO,
+        up: DVec3::Y,
+        fov_y_degrees: 40.0,
+    };
+    let (w, h) = (200u32, 150u32);
+    let mut r = Rasterizer::new(w, h, 3);
+    let empty = r.render(&[], &[], &[], &camera).clone();
+    // A strip of 40 segments, 2 long and 0.1 wide: its length runs along
+    // `along` (across the image: level, then slanted), its width towards
+    // the eye, so the eye lies in its plane; last turned by `tilt` radians
+    // about its length, so that it is a tenth of a pixel wide on screen.
+    let slanted = DVec3::new(1.0, 0.35, 0.0).normalize();
+    for (along, tilt) in [(DVec3::X, 0.0), (slanted, 0.0), (slanted, 0.025f64)] {
+        let across = tilt.cos() * DVec3::Z + tilt.sin() * along.cross(DVec3::Z);
+        let mut x = Vec::new();
+        for i in 0..=40 {
+            let s = -1.0 + i as f64 / 20.0;
+            x.push(s * along - 0.05 * across);
+            x.push(s * along + 0.05 * across);
+        }
+        let t: Vec<[u32; 3]> = (0..40u32)
+            .flat_map(|i| [[2 * i, 2 * i + 2, 2 * i + 3], [2 * i, 2 * i + 3, 2 * i + 1]])
+            .collect();
+        let img = r.render(&x, &t, &vec![Surface::Cloth(0); t.len()], &camera);
+        let drawn: Vec<(i64, i64)> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .filter(|&(x, y)| img.pixel(x, y) != empty.pixel(x, y))
+            .map(|(x, y)| (x as i64, y as i64))
+            .collect();
+        assert!(!drawn.is_empty(), "{along}: nothing drawn");
+        assert!(connected(&drawn), "{along}: the line is broken into pieces");
+        // From one projected end to the other (the ends are about 40 pixels
+        // left and right of the centre), and a line, not a smear.
+        let end = 206.0 * along.x / 5.0;
+        let (x0, x1) = (
+            drawn.iter().map(|p| p.0).min().unwrap(),
+            drawn.iter().map(|p| p.0).max().unwrap(),
+        );
+        let centre = (w / 2) as f64;
+        assert!(
+            (x0 as f64 - (centre - end)).abs() <= 2.0 && (x1 as f64 - (centre + end)).abs() <= 2.0,
+            "{along}: drawn from column {x0} to {x1}, the strip spans {:.0} to {:.0}",
+            centre - end,
+            centre + end
+        );
+        for col in x0..=x1 {
+            let n = drawn.iter().filter(|p| p.0 == col).count();
+            assert!((1..=3).contains(&n), "{along}: column {col} has {n} pixels");
+        }
+    }
+}
+
 #[test]
 fn a_fitted_camera_centres_a_unit_sphere() {
     let (x, t) = sphere(DVec3::new(3.0, -2.0, 7.0), 1.0, 24, 48);
@@ -205,11 +285,11 @@ fn a_fitted_camera_centres_a_unit_sphere() {
     let camera = Camera::fit_points(&x, w as f64 / h as f64, DVec3::Y, 35.0).unwrap();
     let mut r = Rasterizer::new(w, h, 3);
     let empty = r.render(&[], &[], &[], &camera).clone();
-    for surface in [Surface::Obstacle, Surface::Cloth] {
+    for surface in [Surface::Obstacle, Surface::Cloth(0)] {
         let img = r.render(&x, &t, &vec![surface; t.len()], &camera).clone();
         let c = img.pixel(w / 2, h / 2);
-        let want = if surface == Surface::Cloth {
-            CLOTH_FRONT
+        let want = if surface == Surface::Cloth(0) {
+            CLOTH_COLORS[0].front
         } else {
             OBSTACLE
         };
@@ -284,11 +364,21 @@ fn render_run_writes_pngs_and_a_gif_with_every_frame() {
     assert!(names.iter().all(|n| !n.ends_with(".tmp")), "{names:?}");
 }
 
+fn frame_pngs(dir: &Path, frames: &[u32]) -> Vec<PathBuf> {
+    frames
+        .iter()
+        .map(|k| dir.join(format!("frame_{k:05}.png")))
+        .collect()
+}
+
 #[test]
-fn every_kth_frame_replaces_an_earlier_render() {
+fn a_second_render_overwrites_its_frames_and_keeps_the_others() {
     let dir = tempfile::tempdir().unwrap();
     write_run(dir.path(), 7, 8);
+    let render = dir.path().join("render");
     render_run(dir.path(), &gif_opts()).unwrap();
+    // Frame 0 will be written again: spoil it to see that it is replaced.
+    std::fs::write(render.join("frame_00000.png"), b"old").unwrap();
     let opts = RenderOptions {
         every: 3,
         video: VideoMode::None,
@@ -298,17 +388,119 @@ fn every_kth_frame_replaces_an_earlier_render() {
     assert_eq!(report.preview, None);
     assert_eq!(report.video, VideoMode::None);
     assert!((report.fps - 10.0).abs() < 1e-9);
-    let mut left: Vec<PathBuf> = std::fs::read_dir(dir.path().join("render"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    left.sort();
-    let want: Vec<PathBuf> = [0, 3, 6]
+    assert_eq!(report.frames_dir, render);
+    assert_eq!(report.frames, frame_pngs(&render, &[0, 3, 6]));
+    Image::read_png(&render.join("frame_00000.png")).expect("frame 0 rewritten");
+    // The first render's other frames and its GIF are kept, and reported.
+    assert_eq!(report.earlier_frames, frame_pngs(&render, &[1, 2, 4, 5]));
+    for k in 0..7 {
+        assert!(
+            render.join(format!("frame_{k:05}.png")).is_file(),
+            "frame {k}"
+        );
+    }
+    assert!(dir.path().join("preview.gif").is_file());
+    let warnings = report.warnings.join("\n");
+    assert!(
+        warnings.contains("4 frame PNGs")
+            && warnings.contains("frame_00001.png to frame_00005.png"),
+        "{warnings}"
+    );
+    assert!(
+        warnings.contains("preview.gif is from an earlier render"),
+        "{warnings}"
+    );
+
+    // A run with fewer frames than the last render (here, cut back to 3):
+    // the frames beyond stay, and the report says so.
+    let frames = dir.path().join("frames.jsonl");
+    let text = std::fs::read_to_string(&frames).unwrap();
+    let first3: String = text.lines().take(3).map(|l| format!("{l}\n")).collect();
+    std::fs::write(&frames, first3).unwrap();
+    let report = render_run(
+        dir.path(),
+        &RenderOptions {
+            video: VideoMode::None,
+            ..gif_opts()
+        },
+    )
+    .unwrap();
+    assert_eq!(report.frames, frame_pngs(&render, &[0, 1, 2]));
+    assert_eq!(report.earlier_frames, frame_pngs(&render, &[3, 4, 5, 6]));
+    assert!(
+        report
+            .warnings
+            .iter()
+            .any(|w| w.contains("4 frame PNGs") && w.contains("frame_00003.png to frame_00006.png")),
+        "{:?}",
+        report.warnings
+    );
+}
+
+#[test]
+fn a_render_into_another_folder_leaves_the_run_folder_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    write_run(&run, 3, 6);
+    render_run(&run, &gif_opts()).unwrap();
+    let before: Vec<Vec<u8>> = frame_pngs(&run.join("render"), &[0, 1, 2])
         .iter()
-        .map(|k| dir.path().join(format!("render/frame_{k:05}.png")))
+        .map(|p| std::fs::read(p).unwrap())
         .collect();
-    assert_eq!(left, want);
-    assert_eq!(report.frames, want);
+    let gif_before = std::fs::read(run.join("preview.gif")).unwrap();
+
+    let out = dir.path().join("renders/wide");
+    let opts = RenderOptions {
+        width: 200,
+        out: Some(out.clone()),
+        ..gif_opts()
+    };
+    let report = render_run(&run, &opts).unwrap();
+    assert_eq!(report.frames_dir, out);
+    assert_eq!(report.frames, frame_pngs(&out, &[0, 1, 2]));
+    assert_eq!(report.preview, Some(out.join("preview.gif")));
+    assert_eq!(gif_frames(&out.join("preview.gif")).0, 200);
+    assert!(report.earlier_frames.is_empty() && report.warnings.is_empty());
+    // The run folder's own render is untouched.
+    let after: Vec<Vec<u8>> = frame_pngs(&run.join("render"), &[0, 1, 2])
+        .iter()
+        .map(|p| std::fs::read(p).unwrap())
+        .collect();
+    assert!(before == after, "DIR/render changed");
+    assert!(std::fs::read(run.join("preview.gif")).unwrap() == gif_before);
+}
+
+#[test]
+fn a_run_still_writing_frames_jsonl_renders_its_complete_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    write_run(dir.path(), 4, 6);
+    // The run is writing frame 4's line: half of it is there, no newline.
+    let frames = dir.path().join("frames.jsonl");
+    let mut text = std::fs::read_to_string(&frames).unwrap();
+    text.push_str("{\"frame\":4,\"file\":\"frames/frame_000");
+    std::fs::write(&frames, &text).unwrap();
+    let opts = RenderOptions {
+        video: VideoMode::None,
+        ..gif_opts()
+    };
+    let report = render_run(dir.path(), &opts).unwrap();
+    assert_eq!(report.frames.len(), 4);
+    assert!(
+        report
+            .warnings
+            .iter()
+            .any(|w| w.contains("frames.jsonl:5:") && w.contains("incomplete last line")),
+        "{:?}",
+        report.warnings
+    );
+    // A whole line that is malformed is still an error, last or not.
+    text.push_str("04.ply\",\"time\":\"soon\"}\n");
+    std::fs::write(&frames, &text).unwrap();
+    let e = render_run(dir.path(), &opts).unwrap_err().to_string();
+    assert!(
+        e.contains("frames.jsonl:5:") && e.contains("malformed"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -402,6 +594,85 @@ fn a_run_without_objects_json_is_all_cloth() {
     assert!(grey < 20, "{grey} grey pixels");
     // A single frame implies no rate: the default is used.
     assert_eq!(report.fps, weft_render::render::DEFAULT_FPS);
+}
+
+/// The hue of a colour in degrees; `None` for the greys (background,
+/// obstacles, anti-aliased edges) whose hue says nothing.
+fn hue(p: &[u8]) -> Option<f64> {
+    let [r, g, b] = [p[0], p[1], p[2]].map(f64::from);
+    let (max, min) = (r.max(g).max(b), r.min(g).min(b));
+    if max - min < 40.0 {
+        return None;
+    }
+    let h = if max == r {
+        (g - b) / (max - min)
+    } else if max == g {
+        2.0 + (b - r) / (max - min)
+    } else {
+        4.0 + (r - g) / (max - min)
+    };
+    Some((60.0 * h).rem_euclid(360.0))
+}
+
+/// The median of the hues of the coloured pixels in columns `xs`.
+fn median_hue(img: &Image, xs: std::ops::Range<u32>) -> f64 {
+    let mut hues: Vec<f64> = xs
+        .flat_map(|x| (0..img.height).map(move |y| (x, y)))
+        .filter_map(|(x, y)| hue(&img.pixel(x, y)))
+        .collect();
+    assert!(hues.len() > 200, "only {} coloured pixels", hues.len());
+    hues.sort_by(f64::total_cmp);
+    hues[hues.len() / 2]
+}
+
+#[test]
+fn each_cloth_gets_its_own_colour() {
+    // One frame of two equal cloths side by side (left and right of x = 0),
+    // listed as two cloth objects, seen from above and in front.
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("frames")).unwrap();
+    let (a, ta) = cloth(8, 0.8, 0.0);
+    let nv = a.len() as u32;
+    let mut x: Vec<DVec3> = a.iter().map(|p| *p - DVec3::X * 0.5).collect();
+    x.extend(a.iter().map(|p| *p + DVec3::X * 0.5));
+    let mut t = ta.clone();
+    t.extend(ta.iter().map(|f| f.map(|i| i + nv)));
+    weft_io::write_ply(&dir.path().join("frames/frame_00000.ply"), &x, &t, None).unwrap();
+    std::fs::write(
+        dir.path().join("frames.jsonl"),
+        "{\"frame\":0,\"file\":\"frames/frame_00000.ply\",\"time\":0.0}\n",
+    )
+    .unwrap();
+    let nt = ta.len();
+    std::fs::write(
+        dir.path().join("objects.json"),
+        format!(
+            "{{\"objects\":[{{\"name\":\"left\",\"vertices\":[0,{nv}],\"triangles\":[0,{nt}],\"cloth\":true}},\
+             {{\"name\":\"right\",\"vertices\":[{nv},{}],\"triangles\":[{nt},{}],\"cloth\":true}}]}}",
+            2 * nv,
+            2 * nt
+        ),
+    )
+    .unwrap();
+    let opts = RenderOptions {
+        camera: Some(Camera {
+            eye: DVec3::new(0.0, 2.5, 1.5),
+            target: DVec3::ZERO,
+            up: DVec3::Y,
+            fov_y_degrees: 40.0,
+        }),
+        video: VideoMode::None,
+        ..gif_opts()
+    };
+    let report = render_run(dir.path(), &opts).unwrap();
+    let img = Image::read_png(&report.frames[0]).unwrap();
+    let w = img.width;
+    let (left, right) = (median_hue(&img, 0..w / 2), median_hue(&img, w / 2..w));
+    let apart = (left - right).abs().min(360.0 - (left - right).abs());
+    assert!(
+        apart > 60.0,
+        "left cloth hue {left:.0}°, right cloth hue {right:.0}°: too alike"
+    );
 }
 
 #[test]
@@ -535,4 +806,65 @@ fn a_malformed_stats_line_is_reported_with_file_and_line() {
     assert!(e.to_string().contains("timing.jsonl:1:"), "{e}");
     let e = plot_stats(&dir.path().join("absent.jsonl"), dir.path()).unwrap_err();
     assert!(e.to_string().contains("absent.jsonl"), "{e}");
+}
+
+#[test]
+fn the_legend_stays_clear_of_curves_that_fill_its_usual_corner() {
+    use weft_render::chart::{draw_chart, Chart, Panel, Series, Style};
+    // Level and low on the left, a dense wiggle from 0 to 1 on the right:
+    // curves fill the top right, where the legend used to go, and both
+    // bottom corners; the top left is free.
+    let points = (0..=800)
+        .map(|i| {
+            let x = i as f64 / 800.0;
+            let y = if x < 0.5 {
+                0.15
+            } else {
+                0.5 + 0.5 * (300.0 * x).sin()
+            };
+            (x, y)
+        })
+        .collect();
+    let curve = Series {
+        name: "kinetic".into(),
+        color: [31, 119, 180],
+        points,
+        style: Style::Line,
+    };
+    // A second series with no finite point: it is listed in the legend but
+    // changes neither the axes nor the curves.
+    let unplotted = Series {
+        name: "contact".into(),
+        color: [255, 127, 14],
+        points: vec![(f64::NAN, f64::NAN)],
+        style: Style::Line,
+    };
+    let chart = |series| Chart {
+        title: "Energy".into(),
+        x_label: "simulated time (s)".into(),
+        panels: vec![Panel {
+            title: "energy (J)".into(),
+            series,
+        }],
+    };
+    let with_legend = draw_chart(&chart(vec![curve.clone(), unplotted]), 1000);
+    let without = draw_chart(&chart(vec![curve]), 1000);
+    assert_eq!(
+        (with_legend.width, with_legend.height),
+        (without.width, without.height)
+    );
+    // The two charts differ only where the legend is; there, the chart
+    // without it must show no curve (a coloured pixel).
+    let coloured = |p: [u8; 3]| p.iter().max().unwrap() - p.iter().min().unwrap() > 20;
+    let (mut legend, mut hidden) = (0, 0);
+    for y in 0..without.height {
+        for x in 0..without.width {
+            if with_legend.pixel(x, y) != without.pixel(x, y) {
+                legend += 1;
+                hidden += usize::from(coloured(without.pixel(x, y)));
+            }
+        }
+    }
+    assert!(legend > 1000, "no legend drawn ({legend} pixels differ)");
+    assert_eq!(hidden, 0, "the legend hides {hidden} pixels of the curve");
 }

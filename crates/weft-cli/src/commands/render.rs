@@ -1,5 +1,6 @@
-//! `weft render DIR`: PNG frames of a run folder and an MP4 (ffmpeg) or GIF
-//! preview; see [`weft_render::render_run`].
+//! `weft render DIR [--out OUT]`: PNG frames of a run folder (finished or
+//! still running) and an MP4 (ffmpeg) or GIF preview; see
+//! [`weft_render::render_run`].
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -11,8 +12,13 @@ use weft_render::{render_run, Camera, RenderOptions, VideoMode};
 
 #[derive(Debug, Args)]
 pub struct RenderArgs {
-    /// Run folder written by `weft run` (holds frames.jsonl).
+    /// Run folder written by `weft run` (holds frames.jsonl); it may still be running.
     pub dir: PathBuf,
+    /// Folder for the PNG frames and the preview; files of an earlier render are never deleted,
+    /// and those not rewritten are reported [default: DIR/render for the frames, DIR for the
+    /// preview]
+    #[arg(long, value_name = "OUT")]
+    pub out: Option<PathBuf>,
     /// Image width in pixels.
     #[arg(long, default_value_t = 640)]
     pub width: u32,
@@ -95,6 +101,7 @@ pub fn options(args: &RenderArgs) -> anyhow::Result<RenderOptions> {
         supersample: args.supersample,
         ffmpeg: args.ffmpeg.clone(),
         threads: 0,
+        out: args.out.clone(),
     })
 }
 
@@ -102,16 +109,12 @@ pub fn run(args: RenderArgs) -> anyhow::Result<ExitCode> {
     let opts = options(&args)?;
     let report = render_run(&args.dir, &opts)
         .with_context(|| format!("cannot render {}", args.dir.display()))?;
-    for w in &report.warnings {
-        eprintln!("warning: {w}");
-    }
-    let render_dir = args.dir.join("render");
     println!(
         "wrote {} frames ({}x{}) to {} in {:.2} s",
         report.frames.len(),
         report.width,
         report.height,
-        render_dir.display(),
+        report.frames_dir.display(),
         report.seconds
     );
     if let Some(p) = &report.preview {
@@ -131,5 +134,8 @@ pub fn run(args: RenderArgs) -> anyhow::Result<ExitCode> {
         c.up.z,
         c.fov_y_degrees
     );
+    for w in &report.warnings {
+        eprintln!("warning: {w}");
+    }
     Ok(ExitCode::SUCCESS)
 }
