@@ -7,7 +7,7 @@
 
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 mod common;
 use common::{repo, resume, weft, SMALL_CRUMPLE};
@@ -106,6 +106,7 @@ fn bad_rank_counts_are_refused() {
 #[cfg(feature = "mpi")]
 mod mpi {
     use super::*;
+    use std::process::Command;
     use std::time::{Duration, Instant};
 
     /// `state_hash` of the threads issue's determinism fixture (the same
