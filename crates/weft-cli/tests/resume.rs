@@ -175,6 +175,99 @@ fn an_interrupt_after_a_rollback_resumes_identically() {
     assert_same_as_reference(dir.path(), &s);
 }
 
+fn manifest(out: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap()
+}
+
+/// A write that fails mid-run (`write:…` failpoints: "No space left on
+/// device", as a full disk says) ends the run `failed` with the error, every
+/// line file holding whole lines only, and the manifest naming the last good
+/// checkpoint; the resume from it ends as the uninterrupted run does.
+fn fail_a_write_and_resume(failpoint: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let o = fresh_run(dir.path(), Some(failpoint), &[]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{failpoint}: {err}");
+    assert_eq!(
+        err.matches("No space left on device").count(),
+        1,
+        "{failpoint}: the error, once: {err}"
+    );
+    assert!(
+        err.contains("--resume"),
+        "{failpoint}: says how to go on: {err}"
+    );
+    let m = manifest(dir.path());
+    assert_eq!(m["status"], "failed", "{failpoint}");
+    assert!(
+        m["error"]
+            .as_str()
+            .unwrap()
+            .contains("No space left on device"),
+        "{failpoint}: {m}"
+    );
+    assert_eq!(m["last_checkpoint"]["window"], 3, "{failpoint}: {m}");
+    for name in ["stats.jsonl", "timing.jsonl", "frames.jsonl"] {
+        let text = std::fs::read_to_string(dir.path().join(name)).unwrap();
+        assert!(
+            text.is_empty() || text.ends_with('\n'),
+            "{failpoint}: {name} torn"
+        );
+        for line in text.lines() {
+            serde_json::from_str::<serde_json::Value>(line)
+                .unwrap_or_else(|e| panic!("{failpoint}: {name}: {e}: {line}"));
+        }
+    }
+    let s = summary(&resume(dir.path(), &[]));
+    assert_same_as_reference(dir.path(), &s);
+    assert_eq!(manifest(dir.path())["status"], "complete");
+}
+
+#[test]
+fn a_line_write_that_fails_half_way_is_cut_and_the_run_resumes() {
+    // Window 5's line: after the first checkpoint (window 3).
+    fail_a_write_and_resume("write:stats.jsonl@5");
+}
+
+#[test]
+fn a_frame_write_that_fails_leaves_a_resumable_run() {
+    // The first frame of a window after the first checkpoint.
+    let frames = String::from_utf8_lossy(&reference().files["frames.jsonl"]).into_owned();
+    let frame = frames
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .find(|r| r["window"].as_u64().unwrap() > 3)
+        .expect("a frame after window 3")["frame"]
+        .as_u64()
+        .unwrap();
+    fail_a_write_and_resume(&format!("write:frame@{frame}"));
+}
+
+#[test]
+fn a_checkpoint_write_that_fails_leaves_the_previous_one() {
+    fail_a_write_and_resume("write:checkpoint@2");
+}
+
+/// The half-written line a failed write leaves is cut at once, so `weft
+/// plot` reads the stats of the failed run.
+#[test]
+fn the_stats_of_a_failed_run_can_be_plotted() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = fresh_run(dir.path(), Some("write:stats.jsonl@5"), &[]);
+    assert_eq!(o.status.code(), Some(1));
+    let stats = std::fs::read_to_string(dir.path().join("stats.jsonl")).unwrap();
+    assert_eq!(stats.lines().count(), 4, "windows 1 to 4, whole");
+    let plots = tempfile::tempdir().unwrap();
+    let p = weft()
+        .arg("plot")
+        .arg(dir.path())
+        .arg("--out")
+        .arg(plots.path())
+        .output()
+        .unwrap();
+    assert!(p.status.success(), "{}", stderr(&p));
+}
+
 fn wait_for_checkpoint(out: &Path, child: &mut std::process::Child, window: u64) {
     let start = Instant::now();
     loop {

@@ -25,6 +25,8 @@
 //! `DIR/repro/` (positions and velocities as PLY, active layers as JSON) and
 //! checkpointed.
 
+mod faults;
+mod line_file;
 pub mod manifest;
 #[cfg(feature = "mpi")]
 pub mod mpi_launch;
@@ -404,6 +406,7 @@ pub(crate) fn execute_prepared<E: Executor>(
         checkpoint,
     } = prepared;
     let mut engine = Engine::new(world, exec)?;
+    let (frame_dt, frame_note) = frame_interval(scene, &engine.world);
     let machine = Machine::this();
     let mut prior_wall = 0.0;
     let mut writer = None;
@@ -415,12 +418,7 @@ pub(crate) fn execute_prepared<E: Executor>(
         prior_wall = ck.wall_seconds;
         if leader {
             remove_abandoned_temporaries(out);
-            let outputs = RunOutputs::resume(
-                out,
-                &scene.output.formats,
-                scene.output.frame_rate,
-                &ck.cursors,
-            )?;
+            let outputs = RunOutputs::resume(out, &scene.output.formats, frame_dt, &ck.cursors)?;
             let mut m = Manifest::read(out)?;
             m.overrides = scene.overrides.clone();
             m.end_time = scene.end_time;
@@ -433,7 +431,7 @@ pub(crate) fn execute_prepared<E: Executor>(
             writer = Some((outputs, m));
         }
     } else if leader {
-        let outputs = RunOutputs::create(out, &scene.output.formats, scene.output.frame_rate)?;
+        let outputs = RunOutputs::create(out, &scene.output.formats, frame_dt)?;
         write_objects(out, &engine.world)?;
         let m = Manifest {
             weft_version: env!("CARGO_PKG_VERSION").into(),
@@ -489,6 +487,9 @@ pub(crate) fn execute_prepared<E: Executor>(
             }
         );
     }
+    if let (false, Some(note)) = (quiet, frame_note) {
+        eprintln!("weft: note: {note}");
+    }
     let end_tick = w.lattice.window_end_at_or_after(scene.end_time);
     let mut progress = Progress::new(quiet, w.time(), engine.totals.windows, scene.end_time);
     let mut saver = Saver {
@@ -499,76 +500,24 @@ pub(crate) fn execute_prepared<E: Executor>(
         prior_wall,
         started,
     };
-    if let Some((outputs, _)) = &mut writer {
-        outputs.frames_due(&engine.world)?;
-    }
-    let mut stopped_by = None;
-    while engine.world.tick < end_tick {
-        if let Some(range) = &job.trace_windows {
-            weft_sim::trace::set_recording(range.contains(&engine.world.window_index));
-        }
-        let stats = match engine.step_window() {
-            Ok(s) => s,
-            Err(SimError::Interrupted { .. }) => {
-                stopped_by = Some(job.stop.reason().unwrap_or("interrupt"));
-                break;
-            }
-            Err(e) => {
-                progress.finish();
-                if let Some((outputs, manifest)) = &mut writer {
-                    outputs.flush()?;
-                    if matches!(e, SimError::RollbackCap { .. }) {
-                        // The engine is back at the window start: the last commit.
-                        let _ = save_repro(out, &engine.world);
-                        if let Ok(r) = saver.save(&engine, outputs) {
-                            manifest.last_checkpoint = Some(r);
-                        }
-                    }
-                    manifest.status = "failed".into();
-                    manifest.error = Some(e.to_string());
-                    let _ = manifest.write(out);
-                }
-                return Err(e.into());
-            }
-        };
-        let every = scene.output.checkpoint_every;
-        if let Some((outputs, manifest)) = &mut writer {
-            outputs.record_window(&stats)?;
-            outputs.frames_due(&engine.world)?;
-            progress.update(&progress::Snapshot {
-                time: engine.world.time(),
-                windows: engine.totals.windows,
-                rollbacks: engine.totals.rollbacks,
-                active: stats.active_stencils,
-                depth: stats.max_depth,
-            });
-            if every > 0 && engine.world.window_index % every == 0 && engine.world.tick < end_tick {
-                manifest.last_checkpoint = Some(saver.save(&engine, outputs)?);
-                manifest.write(out)?;
-            }
-        }
-        let stop = job.stop.requested();
-        if engine.executor().any_rank(stop)? {
-            // A rank that was not asked itself names the request it joined.
-            stopped_by = Some(
-                job.stop
-                    .reason()
-                    .unwrap_or("a stop request on another rank"),
-            );
-            break;
-        }
-    }
+    // Every error from here on leaves the manifest `failed`, naming it.
+    let ended = step_to_end(
+        &mut engine,
+        &job,
+        end_tick,
+        &mut writer,
+        &mut saver,
+        &mut progress,
+    );
     progress.finish();
+    let stopped_by = match ended {
+        Ok(stopped_by) => stopped_by,
+        Err(e) => return Err(record_failure(e, &engine, &mut writer, &mut saver)),
+    };
     let complete = stopped_by.is_none();
-    let mut frames = 0;
-    if let Some((outputs, manifest)) = &mut writer {
-        // Also at the end: a completed run can be extended with --resume.
-        manifest.last_checkpoint = Some(saver.save(&engine, outputs)?);
-        manifest.status = if complete { "complete" } else { "stopped" }.into();
-        manifest.stopped_by = stopped_by.map(String::from);
-        manifest.write(out)?;
-        frames = outputs.frames_written();
-    }
+    let frames = writer
+        .as_ref()
+        .map_or(0, |(outputs, _)| outputs.frames_written());
     if !quiet {
         if let Some(why) = stopped_by {
             eprintln!(
@@ -608,14 +557,167 @@ pub(crate) fn execute_prepared<E: Executor>(
     })
 }
 
+/// Steps `engine` to `end_tick` or to a stop request, writing every
+/// committed window's outputs and the checkpoints, then a last checkpoint;
+/// returns what stopped the run early, if anything.
+fn step_to_end<E: Executor>(
+    engine: &mut Engine<E>,
+    job: &RunJob<'_>,
+    end_tick: u64,
+    writer: &mut Option<(RunOutputs, Manifest)>,
+    saver: &mut Saver<'_>,
+    progress: &mut Progress,
+) -> anyhow::Result<Option<&'static str>> {
+    let out = job.out;
+    let every = job.scene.output.checkpoint_every;
+    let mut stopped_by = None;
+    if let Some((outputs, _)) = writer {
+        outputs.frames_due(&engine.world)?;
+    }
+    while engine.world.tick < end_tick {
+        if let Some(range) = &job.trace_windows {
+            weft_sim::trace::set_recording(range.contains(&engine.world.window_index));
+        }
+        let stats = match engine.step_window() {
+            Ok(s) => s,
+            Err(SimError::Interrupted { .. }) => {
+                stopped_by = Some(job.stop.reason().unwrap_or("interrupt"));
+                break;
+            }
+            Err(e) => return Err(e.into()),
+        };
+        if let Some((outputs, manifest)) = writer {
+            outputs.record_window(&stats)?;
+            outputs.frames_due(&engine.world)?;
+            progress.update(&progress::Snapshot {
+                time: engine.world.time(),
+                windows: engine.totals.windows,
+                rollbacks: engine.totals.rollbacks,
+                active: stats.active_stencils,
+                depth: stats.max_depth,
+            });
+            if every > 0 && engine.world.window_index % every == 0 && engine.world.tick < end_tick {
+                manifest.last_checkpoint = Some(saver.save(engine, outputs)?);
+                manifest.write(out)?;
+            }
+        }
+        let stop = job.stop.requested();
+        if engine.executor().any_rank(stop)? {
+            // A rank that was not asked itself names the request it joined.
+            stopped_by = Some(
+                job.stop
+                    .reason()
+                    .unwrap_or("a stop request on another rank"),
+            );
+            break;
+        }
+    }
+    if let Some((outputs, manifest)) = writer {
+        // Also at the end: a completed run can be extended with --resume.
+        manifest.last_checkpoint = Some(saver.save(engine, outputs)?);
+        manifest.status = if stopped_by.is_none() {
+            "complete"
+        } else {
+            "stopped"
+        }
+        .into();
+        manifest.stopped_by = stopped_by.map(String::from);
+        manifest.write(out)?;
+    }
+    Ok(stopped_by)
+}
+
+/// Records in the manifest that the run failed with `e` and returns the error
+/// to report. At the rollback cap the engine is back at the window start (the
+/// last commit): that state is kept for a reproduction and checkpointed. Any
+/// other failure (an engine error, a write that failed) checkpoints nothing:
+/// the outputs may lag the engine, and the last good checkpoint stays the one
+/// to resume from.
+fn record_failure<E: Executor>(
+    e: anyhow::Error,
+    engine: &Engine<E>,
+    writer: &mut Option<(RunOutputs, Manifest)>,
+    saver: &mut Saver<'_>,
+) -> anyhow::Error {
+    let Some((outputs, manifest)) = writer else {
+        return e;
+    };
+    let out = saver.out;
+    let engine_error = e.downcast_ref::<SimError>();
+    if matches!(engine_error, Some(SimError::RollbackCap { .. })) {
+        let _ = save_repro(out, &engine.world);
+        if let Ok(r) = saver.save(engine, outputs) {
+            manifest.last_checkpoint = Some(r);
+        }
+    }
+    manifest.status = "failed".into();
+    manifest.error = Some(crate::error_text(&e));
+    let recorded = manifest.write(out);
+    if engine_error.is_some() && recorded.is_ok() {
+        return e;
+    }
+    // Not the simulation's fault: say how to go on.
+    let resume = match &manifest.last_checkpoint {
+        Some(ck) => format!(
+            "the run can go on from its last checkpoint (window {}, t = {:.6} s): remove the \
+             cause, then `weft run --resume {}`",
+            ck.window,
+            ck.time,
+            out.display()
+        ),
+        None => format!(
+            "the run failed before its first checkpoint: remove the cause, then start it \
+             again: `{}`",
+            manifest.restart_command(out)
+        ),
+    };
+    let manifest_note = match recorded {
+        Ok(()) => String::new(),
+        Err(m) => format!(
+            "; {} could not record the failure either ({})",
+            out.join(manifest::FILE).display(),
+            crate::error_text(&m)
+        ),
+    };
+    anyhow::anyhow!("{}{manifest_note}\n  {resume}", crate::error_text(&e))
+}
+
+/// Simulated seconds between frames: `1 / output.frame_rate`, but at least one
+/// window, as frames are committed states and those exist only at window
+/// boundaries (a faster rate wrote the same state several times over). When
+/// the scene asks for more, also the note that says so.
+fn frame_interval(scene: &Scene, world: &World) -> (f64, Option<String>) {
+    let asked = 1.0 / scene.output.frame_rate;
+    let window = world.lattice.seconds(world.lattice.window());
+    // Within rounding of the window (100 frames/s of 0.01 s windows) is no news.
+    if asked >= window * (1.0 - 1e-9) {
+        return (asked.max(window), None);
+    }
+    let note = format!(
+        "output.frame_rate = {} frames/s is above the window rate ({:.6} windows/s of {:.4e} s): \
+         frames are committed states, taken at window boundaries, so one frame per window is \
+         written instead; lower output.frame_rate, or shorten the window (time.window or \
+         time.steps_per_window)",
+        scene.output.frame_rate,
+        1.0 / window,
+        window
+    );
+    (window, Some(note))
+}
+
 /// The checkpoint in run folder `out`, if it can be resumed by a scene whose
 /// hash is `hash`.
 fn read_resumable(out: &Path, hash: &str) -> anyhow::Result<Checkpoint> {
     let path = out.join(CHECKPOINT_FILE);
     if !path.exists() {
+        let restart = Manifest::read(out).map_or_else(
+            |_| format!("weft run SCENE --out {} --overwrite", out.display()),
+            |m| m.restart_command(out),
+        );
         bail!(
-            "{} has no checkpoint to resume from ({} is missing); the run stopped before \
-             its first checkpoint — start it again",
+            "{} has no checkpoint to resume from ({} is missing): the run ended before its \
+             first checkpoint, so there is nothing to continue; start it again, replacing \
+             it: `{restart}`",
             out.display(),
             path.display()
         );
@@ -662,7 +764,10 @@ impl Saver<'_> {
         };
         self.written += 1;
         let n = self.written;
-        write_checkpoint(&self.out.join(CHECKPOINT_FILE), &ck, || {
+        let path = self.out.join(CHECKPOINT_FILE);
+        faults::injected("write:checkpoint", n)
+            .with_context(|| format!("cannot write the checkpoint {}", path.display()))?;
+        write_checkpoint(&path, &ck, || {
             weft_sim::failpoint::hit("checkpoint-rename", n)
         })?;
         let w = &engine.world;
