@@ -268,6 +268,72 @@ fn the_stats_of_a_failed_run_can_be_plotted() {
     assert!(p.status.success(), "{}", stderr(&p));
 }
 
+/// `output.checkpoint_minutes`: a checkpoint also once that much wall time
+/// has passed since the last one (here 6 ms, with the window count off); a
+/// crash resumes from the last of them, to the same bytes.
+#[test]
+fn checkpoints_by_wall_time_resume_identically() {
+    let dir = tempfile::tempdir().unwrap();
+    let by_time = [
+        "--set",
+        "output.checkpoint_every=0",
+        "--set",
+        "output.checkpoint_minutes=0.0001",
+    ];
+    let o = fresh_run(dir.path(), Some("mid-window@7"), &by_time);
+    assert_eq!(
+        o.status.code(),
+        Some(weft_sim::failpoint::EXIT_CODE),
+        "{}",
+        stderr(&o)
+    );
+    // With the window count off, any checkpoint before the crash in window
+    // 7 came by wall time (one per window unless a window takes < 6 ms).
+    let window = manifest(dir.path())["last_checkpoint"]["window"].clone();
+    assert!(
+        window.as_u64().is_some_and(|w| (1..=7).contains(&w)),
+        "a checkpoint by wall time: {window}"
+    );
+    let s = summary(&resume(dir.path(), &[]));
+    assert_same_as_reference(dir.path(), &s);
+}
+
+/// A run killed before its first checkpoint cannot be resumed: the refusal
+/// gives the command that starts it again over the folder (`--overwrite`),
+/// and that command works.
+#[test]
+fn a_run_killed_before_its_first_checkpoint_is_started_again_with_overwrite() {
+    let dir = tempfile::tempdir().unwrap();
+    let no_schedule = [
+        "--set",
+        "output.checkpoint_every=0",
+        "--set",
+        "output.checkpoint_minutes=0",
+    ];
+    let o = fresh_run(dir.path(), Some("mid-window@7"), &no_schedule);
+    assert_eq!(o.status.code(), Some(weft_sim::failpoint::EXIT_CODE));
+    let o = resume(dir.path(), &[]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("no checkpoint"), "{err}");
+    let command = err
+        .split('`')
+        .nth(1)
+        .unwrap_or_else(|| panic!("a command in backquotes: {err}"));
+    assert!(command.contains("--overwrite"), "{command}");
+    let weft_binary = env!("CARGO_BIN_EXE_weft");
+    let command = command.replacen("weft ", &format!("'{weft_binary}' "), 1);
+    let o = Command::new("sh")
+        .arg("-c")
+        .arg(format!("{command} --quiet --no-preview"))
+        .env_remove("WEFT_FAILPOINT")
+        .output()
+        .unwrap();
+    let s = summary(&o);
+    assert_eq!(s["complete"], true);
+    assert_eq!(s["state_hash"].as_str().unwrap(), reference().hash);
+}
+
 fn wait_for_checkpoint(out: &Path, child: &mut std::process::Child, window: u64) {
     let start = Instant::now();
     loop {

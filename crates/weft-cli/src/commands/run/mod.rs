@@ -12,7 +12,8 @@
 //! * `DIR/timing.jsonl`: one JSON line per committed window with its wall-clock
 //!   time, in total and per stage.
 //! * `DIR/checkpoint.wckp`: the last checkpoint (every `output.checkpoint_every`
-//!   windows, at `--stop-after`, on SIGINT / SIGTERM / SIGUSR1, at the rollback
+//!   windows or `output.checkpoint_minutes` of wall time, whichever comes
+//!   first, at `--stop-after`, on SIGINT / SIGTERM / SIGUSR1, at the rollback
 //!   cap and at the end); `weft run --resume DIR` continues from it.
 //! * `DIR/manifest.json`: scene, overrides, version, command lines, machine,
 //!   status and the last good checkpoint.
@@ -42,7 +43,7 @@ use anyhow::{bail, Context};
 use clap::Args;
 use serde::Serialize;
 use weft_io::checkpoint::{read_checkpoint, write_checkpoint, Checkpoint};
-use weft_io::scene::{load_scene, Scene};
+use weft_io::scene::{load_scene, OutputSettings, Scene};
 use weft_par::Threads;
 use weft_sim::{Engine, Executor, Serial, SimError, World};
 
@@ -499,6 +500,7 @@ pub(crate) fn execute_prepared<E: Executor>(
         written: 0,
         prior_wall,
         started,
+        last_written: Instant::now(),
     };
     // Every error from here on leaves the manifest `failed`, naming it.
     let ended = step_to_end(
@@ -569,7 +571,6 @@ fn step_to_end<E: Executor>(
     progress: &mut Progress,
 ) -> anyhow::Result<Option<&'static str>> {
     let out = job.out;
-    let every = job.scene.output.checkpoint_every;
     let mut stopped_by = None;
     if let Some((outputs, _)) = writer {
         outputs.frames_due(&engine.world)?;
@@ -596,7 +597,9 @@ fn step_to_end<E: Executor>(
                 active: stats.active_stencils,
                 depth: stats.max_depth,
             });
-            if every > 0 && engine.world.window_index % every == 0 && engine.world.tick < end_tick {
+            if saver.due(&job.scene.output, engine.world.window_index)
+                && engine.world.tick < end_tick
+            {
                 manifest.last_checkpoint = Some(saver.save(engine, outputs)?);
                 manifest.write(out)?;
             }
@@ -745,9 +748,22 @@ struct Saver<'a> {
     written: u64,
     prior_wall: f64,
     started: Instant,
+    /// When the last checkpoint was written (the start, before the first).
+    last_written: Instant,
 }
 
 impl Saver<'_> {
+    /// Whether a checkpoint is due after committing window `window` (its
+    /// index counted from the start of the run): every `checkpoint_every`
+    /// windows, and once `checkpoint_minutes` of wall time have passed
+    /// since the last one.
+    fn due(&self, output: &OutputSettings, window: u64) -> bool {
+        let every = output.checkpoint_every;
+        let minutes = output.checkpoint_minutes;
+        (every > 0 && window % every == 0)
+            || (minutes > 0.0 && self.last_written.elapsed().as_secs_f64() >= minutes * 60.0)
+    }
+
     /// Flushes the outputs and checkpoints the engine's committed state.
     fn save<E: Executor>(
         &mut self,
@@ -770,6 +786,7 @@ impl Saver<'_> {
         write_checkpoint(&path, &ck, || {
             weft_sim::failpoint::hit("checkpoint-rename", n)
         })?;
+        self.last_written = Instant::now();
         let w = &engine.world;
         Ok(CheckpointRef {
             file: CHECKPOINT_FILE.into(),
