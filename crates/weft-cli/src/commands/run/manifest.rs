@@ -19,6 +19,11 @@ pub struct Manifest {
     /// Every `--set` in effect, in the order applied.
     pub overrides: Vec<String>,
     pub end_time: f64,
+    /// The folders the run writes frames to (`frames`, `frames-obj`,
+    /// `frames-vtk`): with the fixed names, what says which files are the
+    /// run's (absent in manifests of older versions: any of them).
+    #[serde(default)]
+    pub frame_folders: Vec<String>,
     /// `running`, `complete`, `stopped` (resumable) or `failed`.
     pub status: String,
     /// What stopped a `stopped` run: a signal name or `stop-after`.

@@ -27,6 +27,7 @@
 //! checkpointed.
 
 mod faults;
+pub mod folder;
 mod line_file;
 pub mod manifest;
 #[cfg(feature = "mpi")]
@@ -252,14 +253,7 @@ fn prepare(a: &RunArgs) -> anyhow::Result<(Scene, PathBuf, bool)> {
             let (Some(scene), Some(out)) = (&a.scene, &a.out) else {
                 bail!("give a scene and --out DIR, or --resume DIR");
             };
-            if out.join(manifest::FILE).exists() && !a.overwrite {
-                bail!(
-                    "{} already holds a run; continue it with `weft run --resume {}`, \
-                     replace it with --overwrite, or choose another --out",
-                    out.display(),
-                    out.display()
-                );
-            }
+            folder::check_fresh_out(out, a.overwrite)?;
             (load_scene(scene, &a.overrides)?, out.clone(), false)
         }
     })
@@ -418,7 +412,7 @@ pub(crate) fn execute_prepared<E: Executor>(
             .with_context(|| format!("{}", path.display()))?;
         prior_wall = ck.wall_seconds;
         if leader {
-            remove_abandoned_temporaries(out);
+            folder::remove_abandoned_temporaries(out);
             let outputs = RunOutputs::resume(out, &scene.output.formats, frame_dt, &ck.cursors)?;
             let mut m = Manifest::read(out)?;
             m.overrides = scene.overrides.clone();
@@ -432,6 +426,8 @@ pub(crate) fn execute_prepared<E: Executor>(
             writer = Some((outputs, m));
         }
     } else if leader {
+        // Only now that the scene is good: what --overwrite replaces.
+        folder::remove_previous_run(out)?;
         let outputs = RunOutputs::create(out, &scene.output.formats, frame_dt)?;
         write_objects(out, &engine.world)?;
         let m = Manifest {
@@ -443,6 +439,12 @@ pub(crate) fn execute_prepared<E: Executor>(
             },
             overrides: scene.overrides.clone(),
             end_time: scene.end_time,
+            frame_folders: scene
+                .output
+                .formats
+                .iter()
+                .map(|&f| outputs::frames_folder(f).to_string())
+                .collect(),
             status: String::new(),
             stopped_by: None,
             error: None,
@@ -795,26 +797,6 @@ impl Saver<'_> {
             time: w.time(),
             written: manifest::now_utc(),
         })
-    }
-}
-
-/// Removes the temporary files a killed process left behind: a checkpoint or
-/// frame whose write never reached its rename (the checkpoint is then the
-/// previous one, and the frame is written again after the resume).
-fn remove_abandoned_temporaries(out: &Path) {
-    // Atomic writes go through `.NAME.PID.N.tmp` beside their target: a run
-    // killed mid-write leaves one behind in the folder or a frame folder.
-    for dir in ["", "frames", "frames-obj", "frames-vtk"] {
-        let Ok(entries) = std::fs::read_dir(out.join(dir)) else {
-            continue;
-        };
-        for e in entries.flatten() {
-            let name = e.file_name();
-            let name = name.to_string_lossy();
-            if name.starts_with('.') && name.ends_with(".tmp") {
-                let _ = std::fs::remove_file(e.path());
-            }
-        }
     }
 }
 
