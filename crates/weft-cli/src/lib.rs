@@ -23,6 +23,7 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Simulate a scene and write frames, stats and a summary.
+    #[command(after_help = commands::run::EXIT_STATUS_HELP)]
     Run(commands::run::RunArgs),
     /// Measure the engine's throughput and parallel efficiency on a scene.
     Bench(commands::bench::BenchArgs),

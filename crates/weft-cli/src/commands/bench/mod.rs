@@ -600,6 +600,7 @@ fn make_checkpoint(
         preview: false,
         command_line: std::env::args().collect(),
         trace_windows: None,
+        progress_interval: super::run::progress::log_interval()?,
     };
     let n = threads.unwrap_or(1);
     let summary = if n <= 1 {

@@ -18,7 +18,8 @@
 //! * `DIR/manifest.json`: scene, overrides, version, command lines, machine,
 //!   status and the last good checkpoint.
 //! * `DIR/preview.mp4` or `DIR/preview.gif` and `DIR/render/`: a preview of a
-//!   completed run (skip with `--no-preview`).
+//!   run that completed or was stopped by `--stop-after` (skip with
+//!   `--no-preview`).
 //! * standard output, last line: one JSON object with `state_hash`, `windows`,
 //!   `rollbacks`, `wall_seconds`, `complete` and more.
 //!
@@ -56,6 +57,33 @@ use signals::StopRequest;
 /// The checkpoint file in a run folder.
 pub const CHECKPOINT_FILE: &str = "checkpoint.wckp";
 
+/// Exit status of a run stopped early with a checkpoint (`--stop-after`,
+/// SIGINT, SIGTERM, SIGUSR1): `EX_TEMPFAIL` of `sysexits.h`, "try again
+/// later", which job scripts can test to requeue.
+pub const EXIT_STOPPED: u8 = 75;
+
+/// The exit statuses, for `weft run --help`.
+pub const EXIT_STATUS_HELP: &str = "\
+Exit status:
+  0         the run reached its end time
+  1         an error: bad input, or a failure during the run (DIR/manifest.json then says
+            \"failed\", with the error; `--resume DIR` continues from the last checkpoint)
+  2         a command-line usage error
+  75        stopped early with a checkpoint by --stop-after, SIGINT, SIGTERM or SIGUSR1:
+            continue with `weft run --resume DIR` (a job script can requeue on 75)
+  130, 143  a second SIGINT or SIGTERM ended the process at once
+
+When standard error is not a terminal, a progress line is logged every 30 s
+(WEFT_PROGRESS_INTERVAL=DURATION sets the interval: 10, 5m).";
+
+/// The exit status of a run that ended as `summary` says.
+pub fn exit_status(summary: &RunSummary) -> ExitCode {
+    match summary.complete {
+        true => ExitCode::SUCCESS,
+        false => ExitCode::from(EXIT_STOPPED),
+    }
+}
+
 #[derive(Debug, Args)]
 pub struct RunArgs {
     /// The scene file (TOML); not given with --resume.
@@ -71,13 +99,17 @@ pub struct RunArgs {
     /// Override a scene value: `--set key.path=value` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
-    /// Checkpoint and exit cleanly after this much wall time (3600, 45m, 1h30m).
+    /// Checkpoint and exit (status 75) after this much wall time (3600, 45m,
+    /// 1h30m).
     #[arg(long, value_name = "DURATION", value_parser = signals::parse_duration)]
     pub stop_after: Option<Duration>,
-    /// Replace the outputs of an earlier run in the --out folder.
+    /// Write into an --out folder that is not empty: the files an earlier run
+    /// there wrote (its manifest says which) are removed first; other files
+    /// stay, except those named as a run's outputs, which are replaced.
     #[arg(long)]
     pub overwrite: bool,
-    /// Do not render a preview when the run completes.
+    /// Do not render a preview when the run completes or stops at
+    /// --stop-after.
     #[arg(long)]
     pub no_preview: bool,
     /// Worker threads (0: one per logical core). The results are the same
@@ -168,6 +200,8 @@ pub struct RunJob<'a> {
     pub command_line: Vec<String>,
     /// Record timeline spans during these windows (see `weft_sim::trace`).
     pub trace_windows: Option<std::ops::Range<u64>>,
+    /// Time between progress lines when standard error is not a terminal.
+    pub progress_interval: Duration,
 }
 
 pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
@@ -195,7 +229,7 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     }
     let summary = result?;
     println!("{}", serde_json::to_string(&summary)?);
-    Ok(ExitCode::SUCCESS)
+    Ok(exit_status(&summary))
 }
 
 /// Runs `job` on `a.ranks` ranks simulated in this process; returns rank 0's
@@ -284,6 +318,7 @@ fn new_job<'a>(
             .trace
             .as_ref()
             .map(|_| a.trace_windows.clone().unwrap_or(0..u64::MAX)),
+        progress_interval: progress::log_interval()?,
     })
 }
 
@@ -299,6 +334,7 @@ pub fn simulate(scene: &Scene, out: &Path, quiet: bool) -> anyhow::Result<RunSum
         preview: false,
         command_line: Vec::new(),
         trace_windows: None,
+        progress_interval: progress::LOG_INTERVAL,
     };
     execute(job, Serial)
 }
@@ -494,7 +530,13 @@ pub(crate) fn execute_prepared<E: Executor>(
         eprintln!("weft: note: {note}");
     }
     let end_tick = w.lattice.window_end_at_or_after(scene.end_time);
-    let mut progress = Progress::new(quiet, w.time(), engine.totals.windows, scene.end_time);
+    let mut progress = Progress::new(
+        quiet,
+        job.progress_interval,
+        w.time(),
+        engine.totals.windows,
+        scene.end_time,
+    );
     let mut saver = Saver {
         out,
         hash: &hash,
@@ -532,7 +574,10 @@ pub(crate) fn execute_prepared<E: Executor>(
             );
         }
     }
-    if complete && job.preview && leader {
+    // A run stopped by --stop-after has time left for a preview of the
+    // frames so far; one stopped by a signal is asked to end now.
+    let previewed = complete || stopped_by == Some(signals::STOP_AFTER);
+    if previewed && job.preview && leader {
         preview(out, job.quiet, scene_camera(scene));
     }
     let w = &engine.world;
@@ -837,8 +882,8 @@ pub fn camera_of_run(dir: &Path) -> Option<weft_render::Camera> {
     scene_camera(&scene)
 }
 
-/// Renders the preview of a completed run; a failure is reported, not fatal
-/// (the simulation's outputs are already complete).
+/// Renders the preview of the frames so far; a failure is reported, not fatal
+/// (the simulation's outputs are already written).
 fn preview(out: &Path, quiet: bool, camera: Option<weft_render::Camera>) {
     let opts = weft_render::RenderOptions {
         width: 480,

@@ -94,7 +94,8 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
             if rank == 0 {
                 println!("{}", serde_json::to_string(&summary)?);
             }
-            Ok(ExitCode::SUCCESS)
+            // Every rank stopped at the same window: the same status.
+            Ok(super::exit_status(&summary))
         }
         Err(e) => {
             let same_everywhere = matches!(
