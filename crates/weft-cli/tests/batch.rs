@@ -157,3 +157,74 @@ fn a_frame_rate_above_the_window_rate_is_clamped_with_a_note() {
         assert_eq!(f["window"], k as u64, "frame {k} is window {k}'s state");
     }
 }
+
+/// Every committed window's line and every frame's line reach their files
+/// at once (not when a buffer fills or a checkpoint flushes it), so a run in
+/// progress can be watched, plotted and rendered.
+#[test]
+fn a_run_in_progress_shows_each_window_and_frame_as_it_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = crumple(
+        dir.path(),
+        &[
+            "--set",
+            "time.end=5",
+            // No checkpoint, which would flush too.
+            "--set",
+            "output.checkpoint_every=0",
+            "--set",
+            "output.checkpoint_minutes=0",
+            "--quiet",
+            "--no-preview",
+        ],
+    )
+    .stdout(std::process::Stdio::null())
+    .stderr(std::process::Stdio::null())
+    .spawn()
+    .unwrap();
+    let whole_lines = |name: &str| -> Vec<serde_json::Value> {
+        let text = std::fs::read_to_string(dir.path().join(name)).unwrap_or_default();
+        let whole = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
+        whole
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect()
+    };
+    let started = std::time::Instant::now();
+    let (stats, frames) = loop {
+        // Frames first: a frame's window has its stats line before it.
+        let frames = whole_lines("frames.jsonl");
+        let stats = whole_lines("stats.jsonl");
+        if frames.len() >= 3 {
+            break (stats, frames);
+        }
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before its lines were seen"
+        );
+        assert!(
+            started.elapsed().as_secs() < 120,
+            "no lines after 2 minutes"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    child.kill().unwrap();
+    child.wait().unwrap();
+    // Seen as they came (a buffer of 8 kB would have held back a hundred
+    // frame lines), with every window up to the last frame's.
+    assert!(frames.len() < 20, "{} frame lines at once", frames.len());
+    let last = frames.last().unwrap()["window"].as_u64().unwrap();
+    assert!(
+        stats.len() as u64 >= last,
+        "{} stats lines, frame of window {last}",
+        stats.len()
+    );
+    for f in &frames {
+        let file = dir.path().join(f["file"].as_str().unwrap());
+        assert!(
+            file.is_file(),
+            "{} is listed before it exists",
+            file.display()
+        );
+    }
+}
