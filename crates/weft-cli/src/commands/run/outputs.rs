@@ -7,7 +7,7 @@
 //! after its frame cursor are removed, then writing simply continues.
 //!
 //! A window's lines and a frame's line reach their files as they are written
-//! (see [`LineFile`]), a frame's line after its files, so `weft render DIR`
+//! (see `line_file.rs`), a frame's line after its files, so `weft render DIR`
 //! works on a run in progress.
 
 use std::path::{Path, PathBuf};
