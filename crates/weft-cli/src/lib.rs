@@ -1,8 +1,9 @@
 //! # weft-cli — the `weft` command-line tool
 //!
 //! `main` only calls [`run`], so every command is callable from tests.
-//! Errors are printed as `error: …` on standard error with exit code 1
-//! (2 for command-line usage errors).
+//! Errors are printed once, as `error: …` ([`error_text`]) on standard error
+//! with exit code 1 (2 for command-line usage errors; `weft run` documents
+//! its other statuses in its `--help`).
 
 pub mod commands;
 
@@ -22,6 +23,7 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Simulate a scene and write frames, stats and a summary.
+    #[command(after_help = commands::run::EXIT_STATUS_HELP)]
     Run(commands::run::RunArgs),
     /// Measure the engine's throughput and parallel efficiency on a scene.
     Bench(commands::bench::BenchArgs),
@@ -66,8 +68,69 @@ where
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_text(&e));
             ExitCode::from(1)
         }
+    }
+}
+
+/// An error and its causes on one line, `outer: cause: …`, each text once.
+///
+/// anyhow's `{:#}` prints every cause after its parent, but many of weft's
+/// errors already show their cause in their own text (`object 'x': {source}`
+/// with `#[source]`), which `{:#}` would then print twice. A cause whose text
+/// the line already holds is left out.
+pub fn error_text(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let part = cause.to_string();
+        if text.contains(&part) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&part);
+    }
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::error_text;
+
+    #[derive(Debug)]
+    struct Leaf;
+    impl std::fmt::Display for Leaf {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str("the step exceeds the limit")
+        }
+    }
+    impl std::error::Error for Leaf {}
+
+    /// Shows its source in its own text, as `#[error("… {source}")]` does.
+    #[derive(Debug)]
+    struct Wrapper(Leaf);
+    impl std::fmt::Display for Wrapper {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            write!(f, "object 'cloth': {}", self.0)
+        }
+    }
+    impl std::error::Error for Wrapper {
+        fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+            Some(&self.0)
+        }
+    }
+
+    #[test]
+    fn a_cause_already_in_the_text_is_printed_once() {
+        let e = anyhow::Error::new(Wrapper(Leaf));
+        assert_eq!(error_text(&e), "object 'cloth': the step exceeds the limit");
+        // A context that does not repeat its cause keeps it.
+        let e = e.context("cannot build the world");
+        assert_eq!(
+            error_text(&e),
+            "cannot build the world: object 'cloth': the step exceeds the limit"
+        );
     }
 }

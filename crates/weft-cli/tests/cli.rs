@@ -195,6 +195,33 @@ fn bad_scenes_are_refused_with_clear_messages() {
     }
 }
 
+/// An error whose text already shows its cause (the engine's damping refusal:
+/// `object '…': {source}`) is printed once, not once more as the cause.
+#[test]
+fn an_error_is_printed_exactly_once() {
+    let out = tempfile::tempdir().unwrap();
+    let o = weft(&[
+        "run",
+        scene("crumple.toml").to_str().unwrap(),
+        "--out",
+        out.path().to_str().unwrap(),
+        "--set",
+        "size=150",
+        "--set",
+        "cloth.0.material.stretch_damping=1",
+        "--quiet",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.lines().count(), 1, "one line: {err}");
+    assert_eq!(
+        err.matches("damping is above its explicit stability limit")
+            .count(),
+        1,
+        "{err}"
+    );
+}
+
 /// Bad mesh files behind a scene: malformed, non-manifold, degenerate, NaN,
 /// out-of-range indices — each refused with the file, the line or element and
 /// the problem; exit 1; no panic.

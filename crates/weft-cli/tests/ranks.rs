@@ -12,17 +12,26 @@ use std::process::Output;
 mod common;
 use common::{repo, resume, weft, SMALL_CRUMPLE};
 
-/// The summary line of a run that succeeded — the only line: only rank 0
-/// prints.
+/// The summary line of a run that reached its end — the only line: only
+/// rank 0 prints.
 fn summary(o: &Output) -> serde_json::Value {
+    one_line(o);
+    common::summary(o)
+}
+
+/// The summary line of a run stopped with a checkpoint (every rank exits 75).
+fn stopped_summary(o: &Output) -> serde_json::Value {
+    one_line(o);
+    common::stopped_summary(o)
+}
+
+fn one_line(o: &Output) {
     let text = String::from_utf8_lossy(&o.stdout);
-    let s = common::summary(o);
     assert_eq!(
         text.lines().count(),
         1,
         "one summary line (rank 0 only):\n{text}"
     );
-    s
 }
 
 /// The files a rank count must not change.
@@ -77,17 +86,15 @@ fn a_run_stopped_on_some_ranks_resumes_on_others() {
     let dir = tempfile::tempdir().unwrap();
     // Stopped after its first window on 3 ranks (they agree to stop at the
     // window boundary), continued on 2, then finished in one process.
-    let s = summary(&run_small(
+    let s = stopped_summary(&run_small(
         dir.path(),
         &["--ranks", "3", "--threads", "1", "--stop-after", "0"],
     ));
-    assert_eq!(s["complete"], false, "{s}");
     assert_eq!(s["stopped_by"], "stop-after", "{s}");
-    let s = summary(&resume(
+    stopped_summary(&resume(
         dir.path(),
         &["--ranks", "2", "--threads", "1", "--stop-after", "0"],
     ));
-    assert_eq!(s["complete"], false, "{s}");
     let s = summary(&resume(dir.path(), &["--threads", "1"]));
     assert_eq!(s["complete"], true, "{s}");
     assert_eq!(s["state_hash"], reference["state_hash"]);
@@ -201,16 +208,15 @@ mod mpi {
     #[test]
     fn mpi_run_resumes_on_another_rank_count_and_without_mpi() {
         let dir = tempfile::tempdir().unwrap();
-        let s = summary(&run_fixture(2, 1, dir.path(), &["--stop-after", "0"]));
-        assert_eq!(s["complete"], false, "{s}");
+        // Both ranks exit 75, and so does mpirun.
+        stopped_summary(&run_fixture(2, 1, dir.path(), &["--stop-after", "0"]));
         let o = resume_fixture(
             4,
             dir.path(),
             &["--stop-after", "0"],
             Duration::from_secs(240),
         );
-        let s = summary(&o);
-        assert_eq!(s["complete"], false, "{s}");
+        stopped_summary(&o);
         // Then without MPI at all.
         let s = summary(&resume(dir.path(), &["--threads", "2"]));
         assert_eq!(s["complete"], true, "{s}");
@@ -231,8 +237,8 @@ mod mpi {
     #[test]
     fn mpi_resume_from_a_corrupt_checkpoint_is_one_error() {
         let dir = tempfile::tempdir().unwrap();
-        let s = summary(&run_fixture(2, 1, dir.path(), &["--stop-after", "0"]));
-        assert_eq!(s["complete"], false, "{s}");
+        // Both ranks exit 75, and so does mpirun.
+        stopped_summary(&run_fixture(2, 1, dir.path(), &["--stop-after", "0"]));
         let ck = dir.path().join("checkpoint.wckp");
         let mut bytes = std::fs::read(&ck).unwrap();
         let middle = bytes.len() / 2;

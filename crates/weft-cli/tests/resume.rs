@@ -12,7 +12,7 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{repo, resume, summary, weft, SMALL_CRUMPLE};
+use common::{repo, resume, stopped_summary, summary, weft, SMALL_CRUMPLE};
 
 /// The small `crumple`, writing PLY and VTK frames.
 const FORMATS: &[&str] = &["--set", "output.formats=[\"ply\",\"vtk\"]"];
@@ -168,11 +168,169 @@ fn an_interrupt_after_a_rollback_resumes_identically() {
     let before: u64 = r.rollbacks[..w].iter().sum();
     let dir = tempfile::tempdir().unwrap();
     let point = format!("interrupt-after-rollback@{}", before + 1);
-    let s = summary(&fresh_run(dir.path(), Some(&point), &[]));
-    assert_eq!(s["complete"], false, "{point} stopped the run");
+    let s = stopped_summary(&fresh_run(dir.path(), Some(&point), &[]));
     assert_eq!(s["windows"], w as u64, "stopped in window {w}");
     let s = summary(&resume(dir.path(), &[]));
     assert_same_as_reference(dir.path(), &s);
+}
+
+fn manifest(out: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap()
+}
+
+/// A write that fails mid-run (`write:…` failpoints: "No space left on
+/// device", as a full disk says) ends the run `failed` with the error, every
+/// line file holding whole lines only, and the manifest naming the last good
+/// checkpoint; the resume from it ends as the uninterrupted run does.
+fn fail_a_write_and_resume(failpoint: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let o = fresh_run(dir.path(), Some(failpoint), &[]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{failpoint}: {err}");
+    assert_eq!(
+        err.matches("No space left on device").count(),
+        1,
+        "{failpoint}: the error, once: {err}"
+    );
+    assert!(
+        err.contains("--resume"),
+        "{failpoint}: says how to go on: {err}"
+    );
+    let m = manifest(dir.path());
+    assert_eq!(m["status"], "failed", "{failpoint}");
+    assert!(
+        m["error"]
+            .as_str()
+            .unwrap()
+            .contains("No space left on device"),
+        "{failpoint}: {m}"
+    );
+    assert_eq!(m["last_checkpoint"]["window"], 3, "{failpoint}: {m}");
+    for name in ["stats.jsonl", "timing.jsonl", "frames.jsonl"] {
+        let text = std::fs::read_to_string(dir.path().join(name)).unwrap();
+        assert!(
+            text.is_empty() || text.ends_with('\n'),
+            "{failpoint}: {name} torn"
+        );
+        for line in text.lines() {
+            serde_json::from_str::<serde_json::Value>(line)
+                .unwrap_or_else(|e| panic!("{failpoint}: {name}: {e}: {line}"));
+        }
+    }
+    let s = summary(&resume(dir.path(), &[]));
+    assert_same_as_reference(dir.path(), &s);
+    assert_eq!(manifest(dir.path())["status"], "complete");
+}
+
+#[test]
+fn a_line_write_that_fails_half_way_is_cut_and_the_run_resumes() {
+    // Window 5's line: after the first checkpoint (window 3).
+    fail_a_write_and_resume("write:stats.jsonl@5");
+}
+
+#[test]
+fn a_frame_write_that_fails_leaves_a_resumable_run() {
+    // The first frame of a window after the first checkpoint.
+    let frames = String::from_utf8_lossy(&reference().files["frames.jsonl"]).into_owned();
+    let frame = frames
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .find(|r| r["window"].as_u64().unwrap() > 3)
+        .expect("a frame after window 3")["frame"]
+        .as_u64()
+        .unwrap();
+    fail_a_write_and_resume(&format!("write:frame@{frame}"));
+}
+
+#[test]
+fn a_checkpoint_write_that_fails_leaves_the_previous_one() {
+    fail_a_write_and_resume("write:checkpoint@2");
+}
+
+/// The half-written line a failed write leaves is cut at once, so `weft
+/// plot` reads the stats of the failed run.
+#[test]
+fn the_stats_of_a_failed_run_can_be_plotted() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = fresh_run(dir.path(), Some("write:stats.jsonl@5"), &[]);
+    assert_eq!(o.status.code(), Some(1));
+    let stats = std::fs::read_to_string(dir.path().join("stats.jsonl")).unwrap();
+    assert_eq!(stats.lines().count(), 4, "windows 1 to 4, whole");
+    let plots = tempfile::tempdir().unwrap();
+    let p = weft()
+        .arg("plot")
+        .arg(dir.path())
+        .arg("--out")
+        .arg(plots.path())
+        .output()
+        .unwrap();
+    assert!(p.status.success(), "{}", stderr(&p));
+}
+
+/// `output.checkpoint_minutes`: a checkpoint also once that much wall time
+/// has passed since the last one (here 6 ms, with the window count off); a
+/// crash resumes from the last of them, to the same bytes.
+#[test]
+fn checkpoints_by_wall_time_resume_identically() {
+    let dir = tempfile::tempdir().unwrap();
+    let by_time = [
+        "--set",
+        "output.checkpoint_every=0",
+        "--set",
+        "output.checkpoint_minutes=0.0001",
+    ];
+    let o = fresh_run(dir.path(), Some("mid-window@7"), &by_time);
+    assert_eq!(
+        o.status.code(),
+        Some(weft_sim::failpoint::EXIT_CODE),
+        "{}",
+        stderr(&o)
+    );
+    // With the window count off, any checkpoint before the crash in window
+    // 7 came by wall time (one per window unless a window takes < 6 ms).
+    let window = manifest(dir.path())["last_checkpoint"]["window"].clone();
+    assert!(
+        window.as_u64().is_some_and(|w| (1..=7).contains(&w)),
+        "a checkpoint by wall time: {window}"
+    );
+    let s = summary(&resume(dir.path(), &[]));
+    assert_same_as_reference(dir.path(), &s);
+}
+
+/// A run killed before its first checkpoint cannot be resumed: the refusal
+/// gives the command that starts it again over the folder (`--overwrite`),
+/// and that command works.
+#[test]
+fn a_run_killed_before_its_first_checkpoint_is_started_again_with_overwrite() {
+    let dir = tempfile::tempdir().unwrap();
+    let no_schedule = [
+        "--set",
+        "output.checkpoint_every=0",
+        "--set",
+        "output.checkpoint_minutes=0",
+    ];
+    let o = fresh_run(dir.path(), Some("mid-window@7"), &no_schedule);
+    assert_eq!(o.status.code(), Some(weft_sim::failpoint::EXIT_CODE));
+    let o = resume(dir.path(), &[]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("no checkpoint"), "{err}");
+    let command = err
+        .split('`')
+        .nth(1)
+        .unwrap_or_else(|| panic!("a command in backquotes: {err}"));
+    assert!(command.contains("--overwrite"), "{command}");
+    let weft_binary = env!("CARGO_BIN_EXE_weft");
+    let command = command.replacen("weft ", &format!("'{weft_binary}' "), 1);
+    let o = Command::new("sh")
+        .arg("-c")
+        .arg(format!("{command} --quiet --no-preview"))
+        .env_remove("WEFT_FAILPOINT")
+        .output()
+        .unwrap();
+    let s = summary(&o);
+    assert_eq!(s["complete"], true);
+    assert_eq!(s["state_hash"].as_str().unwrap(), reference().hash);
 }
 
 fn wait_for_checkpoint(out: &Path, child: &mut std::process::Child, window: u64) {
@@ -237,12 +395,12 @@ fn sigterm_checkpoints_and_exits_cleanly() {
         .unwrap();
     assert!(killed.success());
     let o = child.wait_with_output().unwrap();
-    let s = summary(&o);
-    if s["complete"] == true {
+    if o.status.success() {
         // The signal came after the last window: nothing left to resume.
-        assert_same_as_reference(dir.path(), &s);
+        assert_same_as_reference(dir.path(), &summary(&o));
         return;
     }
+    let s = stopped_summary(&o);
     assert_eq!(s["stopped_by"], "SIGTERM");
     let m: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap()).unwrap();
@@ -254,12 +412,10 @@ fn sigterm_checkpoints_and_exits_cleanly() {
 #[test]
 fn stop_after_checkpoints_and_resume_finishes_identically() {
     let dir = tempfile::tempdir().unwrap();
-    let s = summary(&fresh_run(dir.path(), None, &["--stop-after", "0"]));
-    assert_eq!(s["complete"], false);
+    let s = stopped_summary(&fresh_run(dir.path(), None, &["--stop-after", "0"]));
     assert_eq!(s["stopped_by"], "stop-after");
     // Resumed twice: a resume may itself be stopped and resumed.
-    let s = summary(&resume(dir.path(), &["--stop-after", "0"]));
-    assert_eq!(s["complete"], false);
+    stopped_summary(&resume(dir.path(), &["--stop-after", "0"]));
     let s = summary(&resume(dir.path(), &[]));
     assert_same_as_reference(dir.path(), &s);
     let m: serde_json::Value =
@@ -271,8 +427,7 @@ fn stop_after_checkpoints_and_resume_finishes_identically() {
 #[test]
 fn a_resume_removes_the_temporaries_of_writes_a_kill_interrupted() {
     let dir = tempfile::tempdir().unwrap();
-    let s = summary(&fresh_run(dir.path(), None, &["--stop-after", "0"]));
-    assert_eq!(s["complete"], false);
+    stopped_summary(&fresh_run(dir.path(), None, &["--stop-after", "0"]));
     // What a process killed between writing and renaming leaves behind.
     for (folder, name) in [
         ("", ".checkpoint.wckp.4242.7.tmp"),

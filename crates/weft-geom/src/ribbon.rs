@@ -208,7 +208,7 @@ pub fn sample_curve(f: impl Fn(f64) -> DVec3, t0: f64, t1: f64, samples: usize) 
 /// spacing across, `width / (across - 1)`, as nearly as possible.
 pub fn rows_for(length: f64, width: f64, across: usize) -> usize {
     let h = width / (across.max(2) - 1) as f64;
-    ((length / h).round() as usize + 1).max(2)
+    ((length / h).round() as usize).saturating_add(1).max(2)
 }
 
 /// Vertices across and rows along for ribbons of the given `lengths` sharing

@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use clap::Args;
 use serde::Serialize;
 use weft_io::scene::load_scene;
-use weft_sim::trajectory::BYTES_PER_BREAKPOINT;
+use weft_io::scene::memory::estimated_bytes;
 
 #[derive(Debug, Args)]
 pub struct InfoArgs {
@@ -59,8 +59,7 @@ pub struct SceneInfo {
     pub layer1_stiffness: f64,
     pub layer1_step: f64,
     /// Bytes for state, forces and one window of internal-clock breakpoints
-    /// (contacts add more: about `W / h_1 · Σ l^1.5` breakpoints per vertex
-    /// in a contact of depth D).
+    /// (see [`estimated_bytes`]; contacts add more).
     pub estimated_bytes: u64,
 }
 
@@ -88,11 +87,7 @@ pub fn scene_info(scene: &weft_io::scene::Scene) -> anyhow::Result<SceneInfo> {
         .iter()
         .map(|e| e.max_principal_strain(&e.verts.map(|i| w.x[i as usize])))
         .fold(0.0f64, f64::max);
-    let n = w.num_vertices() as u64;
     let steps = w.lattice.steps_per_window;
-    let state = n * (3 * 24 + 8 + 16);
-    let forces = w.internal.num_slots() as u64 * 24 + w.internal.num_stencils() as u64 * 48;
-    let trajectories = n * (steps + 2) * BYTES_PER_BREAKPOINT as u64;
     let window = w.lattice.window();
     let end = w.lattice.window_end_at_or_after(scene.end_time);
     Ok(SceneInfo {
@@ -125,7 +120,12 @@ pub fn scene_info(scene: &weft_io::scene::Scene) -> anyhow::Result<SceneInfo> {
         separation_floor: w.schedule.eta_inf,
         layer1_stiffness: w.schedule.k_1,
         layer1_step: w.lattice.seconds(w.schedule.h_1),
-        estimated_bytes: state + forces + trajectories,
+        estimated_bytes: estimated_bytes(
+            w.num_vertices() as u64,
+            w.internal.stretch.len() as u64,
+            w.internal.hinges.len() as u64,
+            steps,
+        ),
     })
 }
 

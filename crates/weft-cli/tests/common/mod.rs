@@ -44,11 +44,26 @@ pub fn resume(out: &Path, extra: &[&str]) -> Output {
         .expect("weft runs")
 }
 
-/// The JSON summary (last line) of a run that succeeded.
+/// The JSON summary (last line) of a run that reached its end (exit 0).
 pub fn summary(o: &Output) -> serde_json::Value {
-    assert!(
-        o.status.success(),
-        "weft failed: {:?}\n{}",
+    summary_with_status(o, 0)
+}
+
+/// Exit status of a run stopped early with a checkpoint (`weft run --help`).
+pub const STOPPED: i32 = 75;
+
+/// The JSON summary of a run stopped early with a checkpoint (exit 75).
+pub fn stopped_summary(o: &Output) -> serde_json::Value {
+    let s = summary_with_status(o, STOPPED);
+    assert_eq!(s["complete"], false, "{s}");
+    s
+}
+
+fn summary_with_status(o: &Output, code: i32) -> serde_json::Value {
+    assert_eq!(
+        o.status.code(),
+        Some(code),
+        "weft exited with {:?}, not {code}:\n{}",
         o.status,
         String::from_utf8_lossy(&o.stderr)
     );

@@ -4,6 +4,7 @@
 //! unknown keys and wrong types with the file, line and key, resolves mesh files
 //! relative to the scene, runs the generators and validates every value.
 
+pub mod memory;
 pub mod ribbon;
 pub mod schema;
 
@@ -18,6 +19,7 @@ use weft_sim::kinematics::{Keyframes, Motion};
 use weft_sim::materials::Material;
 use weft_sim::{ObjectKind, ObjectSpec, PinSpec, WorldSpec};
 
+use memory::{MemoryBudget, MemoryLimit};
 use schema::{
     CameraSection, ClothSection, MeshSequenceSection, MotionSection, SceneFile, TimeSection,
     Transform, DEFAULT_STEPS_PER_WINDOW, SCENE_VERSION,
@@ -64,6 +66,9 @@ pub struct OutputSettings {
     pub formats: Vec<FrameFormat>,
     /// Committed windows between checkpoints (0 = none on a schedule).
     pub checkpoint_every: u64,
+    /// Wall-time minutes after which a checkpoint is written even before
+    /// `checkpoint_every` windows (0 = never on wall time).
+    pub checkpoint_minutes: f64,
 }
 
 /// Frame file format.
@@ -607,6 +612,16 @@ fn load_sequence(
     ))
 }
 
+/// A generator's resolution as written and, when the scene's `size` scaled
+/// it, as scaled (for the memory refusal).
+fn resolution_source(written: [usize; 2], scaled: [f64; 2], size: u64) -> String {
+    let scaled = format!("[{:.0}, {:.0}]", scaled[0], scaled[1]);
+    match size {
+        0 => format!("resolution {scaled}"),
+        _ => format!("resolution {written:?}, scaled by size = {size} to {scaled},"),
+    }
+}
+
 /// `[time]`: the internal step (if given or implied) and the steps per
 /// window, from any two of `window`, `internal_step`, `steps_per_window`.
 fn resolve_time(t: &TimeSection, path: &Path) -> Result<(Option<f64>, u64), SceneError> {
@@ -774,8 +789,19 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
         ));
     }
     let (internal_step, steps_per_window) = resolve_time(&file.time, path)?;
+    // Every object is admitted against the machine's memory before (for a
+    // generator) or as it is built.
+    let mut budget = MemoryBudget::new(MemoryLimit::this_machine(), steps_per_window);
     if !pos(file.output.frame_rate) {
         return Err(invalid(path, "output.frame_rate", "must be positive"));
+    }
+    let minutes = file.output.checkpoint_minutes;
+    if !(minutes >= 0.0 && minutes.is_finite()) {
+        return Err(invalid(
+            path,
+            "output.checkpoint_minutes",
+            format!("{minutes} must be a non-negative number of minutes (0: none on wall time)"),
+        ));
     }
     let mut formats = Vec::new();
     for (i, f) in file.output.formats.iter().enumerate() {
@@ -819,7 +845,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
         .cloth
         .iter()
         .filter_map(|c| c.grid.as_ref())
-        .map(|g| (g.resolution[0] * g.resolution[1]) as f64)
+        .map(|g| g.resolution[0] as f64 * g.resolution[1] as f64)
         .sum::<f64>()
         + file
             .cloth
@@ -831,7 +857,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             .cloth
             .iter()
             .filter_map(|c| c.tube.as_ref())
-            .map(|t| (t.resolution[0] * t.resolution[1]) as f64)
+            .map(|t| t.resolution[0] as f64 * t.resolution[1] as f64)
             .sum::<f64>();
     let res_scale = if file.size > 0 && generated > 0.0 {
         (file.size as f64 / generated).sqrt()
@@ -871,18 +897,34 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                     ));
                 }
                 let res = [
-                    ((t.resolution[0] as f64 * res_scale).round() as usize).max(3),
-                    ((t.resolution[1] as f64 * res_scale).round() as usize).max(2),
+                    (t.resolution[0] as f64 * res_scale).round().max(3.0),
+                    (t.resolution[1] as f64 * res_scale).round().max(2.0),
                 ];
+                budget.admit(
+                    path,
+                    &format!("{tube_key}.resolution"),
+                    &resolution_source(t.resolution, res, file.size),
+                    res[0] * res[1],
+                    2.0 * res[0] * (res[1] - 1.0),
+                    true,
+                )?;
+                let res = res.map(|r| r as usize);
                 let m = weft_geom::shapes::tube(a, b, t.radius, res);
                 let rest = weft_geom::shapes::tube(a, b, rest_radius, res);
                 (m, Some(rest))
             }
             (None, None) if c.ribbon.is_some() => {
                 let r = c.ribbon.as_ref().expect("checked by the guard");
-                let target = (file.size > 0 && generated > 0.0).then(|| {
-                    (ribbon::written_vertices(r) * file.size as f64 / generated).round() as usize
-                });
+                let target = (file.size > 0 && generated > 0.0)
+                    .then(|| (ribbon::written_vertices(r) * file.size as f64 / generated).round());
+                let vertices = target.unwrap_or_else(|| ribbon::written_vertices(r));
+                let source = match target {
+                    Some(_) => format!("the ribbon, scaled by size = {},", file.size),
+                    None => format!("the ribbon with across = {}", r.across),
+                };
+                let ribbon_key = format!("{key}.ribbon");
+                budget.admit(path, &ribbon_key, &source, vertices, 2.0 * vertices, true)?;
+                let target = target.map(|n| n as usize);
                 let rb = ribbon::build(r, path, &key, file.contact.thickness, target)?;
                 (rb.mesh, Some(rb.flat))
             }
@@ -895,6 +937,8 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             }
             (Some(f), None) => {
                 let m = load_mesh_file(path, f, &key)?;
+                let (v, t) = (m.num_vertices() as f64, m.num_triangles() as f64);
+                budget.admit(path, &key, &format!("the mesh {f}"), v, t, true)?;
                 (m, None)
             }
             (None, Some(g)) => {
@@ -918,9 +962,18 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                     ));
                 }
                 let res = [
-                    ((g.resolution[0] as f64 * res_scale).round() as usize).max(2),
-                    ((g.resolution[1] as f64 * res_scale).round() as usize).max(2),
+                    (g.resolution[0] as f64 * res_scale).round().max(2.0),
+                    (g.resolution[1] as f64 * res_scale).round().max(2.0),
                 ];
+                budget.admit(
+                    path,
+                    &format!("{key}.grid.resolution"),
+                    &resolution_source(g.resolution, res, file.size),
+                    res[0] * res[1],
+                    2.0 * (res[0] - 1.0) * (res[1] - 1.0),
+                    true,
+                )?;
+                let res = res.map(|r| r as usize);
                 let flat = weft_geom::shapes::grid(v3(g.center), eu, ev, g.size, res);
                 let mut m = flat.clone();
                 if g.wave != 0.0 {
@@ -1154,6 +1207,15 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                         "needs a positive radius and distinct ends",
                     ));
                 }
+                let (around, along) = (c.segments.max(3) as f64, c.rings.max(1) as f64);
+                budget.admit(
+                    path,
+                    &format!("{key}.cylinder"),
+                    &format!("segments = {}, rings = {}", c.segments, c.rings),
+                    around * (along + 1.0) + 2.0,
+                    2.0 * around * (along + 1.0),
+                    false,
+                )?;
                 weft_geom::shapes::capped_cylinder(
                     v3(c.from),
                     v3(c.to),
@@ -1170,6 +1232,10 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                 ))
             }
         };
+        if o.cylinder.is_none() {
+            let (v, t) = (mesh.num_vertices() as f64, mesh.num_triangles() as f64);
+            budget.admit(path, &key, "the obstacle", v, t, false)?;
+        }
         let motion = match keyframes {
             // The frames are already transformed.
             Some(k) => Motion::Sequence(k),
@@ -1265,6 +1331,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             frame_rate: file.output.frame_rate,
             formats,
             checkpoint_every: file.output.checkpoint_every,
+            checkpoint_minutes: file.output.checkpoint_minutes,
         },
         camera: file.camera.as_ref().map(|c| camera(c, path)).transpose()?,
         overrides: overrides.to_vec(),

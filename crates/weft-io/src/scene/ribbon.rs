@@ -92,7 +92,7 @@ pub fn written_vertices(r: &RibbonSection) -> f64 {
     lengths
         .iter()
         .filter(|l| l.is_finite())
-        .map(|&l| (r.across * geom::rows_for(l, r.width, r.across)) as f64)
+        .map(|&l| r.across as f64 * geom::rows_for(l, r.width, r.across) as f64)
         .sum()
 }
 

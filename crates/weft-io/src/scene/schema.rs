@@ -14,8 +14,9 @@ pub struct SceneFile {
     #[serde(default)]
     pub name: Option<String>,
     /// Approximate number of cloth vertices; generators scale their resolution
-    /// to reach it (0 = the generators' own resolution).
-    #[serde(default)]
+    /// to reach it (0 = the generators' own resolution). An integer, or a
+    /// whole number written as a float (`1e6`).
+    #[serde(default, deserialize_with = "whole_number")]
     pub size: u64,
     /// Gravity (m/s²).
     #[serde(default = "default_gravity")]
@@ -39,6 +40,32 @@ pub struct SceneFile {
     /// per 512 cloth triangles, 1 to 256; results never depend on it).
     #[serde(default = "default_partitions")]
     pub partitions: usize,
+}
+
+/// A non-negative integer, also when written as a float (`--set size=1e6`).
+fn whole_number<'de, D: serde::Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+    struct Whole;
+    impl serde::de::Visitor<'_> for Whole {
+        type Value = u64;
+        fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str("a non-negative whole number")
+        }
+        fn visit_u64<E: serde::de::Error>(self, n: u64) -> Result<u64, E> {
+            Ok(n)
+        }
+        fn visit_i64<E: serde::de::Error>(self, n: i64) -> Result<u64, E> {
+            u64::try_from(n).map_err(|_| E::custom(format!("{n} is negative")))
+        }
+        fn visit_f64<E: serde::de::Error>(self, x: f64) -> Result<u64, E> {
+            // 2^64 is the first float beyond u64.
+            if x >= 0.0 && x.fract() == 0.0 && x < 18_446_744_073_709_551_616.0 {
+                Ok(x as u64)
+            } else {
+                Err(E::custom(format!("{x} is not a non-negative whole number")))
+            }
+        }
+    }
+    d.deserialize_any(Whole)
 }
 
 fn default_gravity() -> [f64; 3] {
@@ -166,6 +193,10 @@ pub struct OutputSection {
     /// `--stop-after`, on signals and at the rollback cap).
     #[serde(default = "default_checkpoint_every")]
     pub checkpoint_every: u64,
+    /// Also write a checkpoint once this many minutes of wall time have
+    /// passed since the last one (0 = by window count only).
+    #[serde(default = "default_checkpoint_minutes")]
+    pub checkpoint_minutes: f64,
 }
 
 fn default_frame_rate() -> f64 {
@@ -177,6 +208,9 @@ fn default_formats() -> Vec<String> {
 fn default_checkpoint_every() -> u64 {
     100
 }
+fn default_checkpoint_minutes() -> f64 {
+    10.0
+}
 
 impl Default for OutputSection {
     fn default() -> Self {
@@ -184,6 +218,7 @@ impl Default for OutputSection {
             frame_rate: default_frame_rate(),
             formats: default_formats(),
             checkpoint_every: default_checkpoint_every(),
+            checkpoint_minutes: default_checkpoint_minutes(),
         }
     }
 }

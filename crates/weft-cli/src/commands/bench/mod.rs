@@ -244,7 +244,7 @@ pub fn run(a: BenchArgs) -> anyhow::Result<ExitCode> {
             Ok(code) => Ok(code),
             // The ranks may be at different points: end them all.
             Err(e) if transport.size() > 1 => {
-                eprintln!("error: on rank {rank}: {e:#}");
+                eprintln!("error: on rank {rank}: {}", crate::error_text(&e));
                 transport.abort(1)
             }
             Err(e) => Err(e),
@@ -600,6 +600,7 @@ fn make_checkpoint(
         preview: false,
         command_line: std::env::args().collect(),
         trace_windows: None,
+        progress_interval: super::run::progress::log_interval()?,
     };
     let n = threads.unwrap_or(1);
     let summary = if n <= 1 {

@@ -19,6 +19,11 @@ pub struct Manifest {
     /// Every `--set` in effect, in the order applied.
     pub overrides: Vec<String>,
     pub end_time: f64,
+    /// The folders the run writes frames to (`frames`, `frames-obj`,
+    /// `frames-vtk`): with the fixed names, what says which files are the
+    /// run's (absent in manifests of older versions: any of them).
+    #[serde(default)]
+    pub frame_folders: Vec<String>,
     /// `running`, `complete`, `stopped` (resumable) or `failed`.
     pub status: String,
     /// What stopped a `stopped` run: a signal name or `stop-after`.
@@ -100,11 +105,42 @@ impl Manifest {
             .with_context(|| format!("{}: not a valid weft run manifest", path.display()))
     }
 
+    /// The command line that starts this run afresh in `dir`, replacing it.
+    pub fn restart_command(&self, dir: &Path) -> String {
+        let mut words = vec![
+            "weft".to_string(),
+            "run".into(),
+            shell_word(&self.scene.path.to_string_lossy()),
+            "--out".into(),
+            shell_word(&dir.to_string_lossy()),
+            "--overwrite".into(),
+        ];
+        for o in &self.overrides {
+            words.push("--set".into());
+            words.push(shell_word(o));
+        }
+        words.join(" ")
+    }
+
     pub fn write(&mut self, dir: &Path) -> anyhow::Result<()> {
         self.updated = now_utc();
         let text = serde_json::to_string_pretty(self)? + "\n";
         weft_io::write_atomic(&dir.join(FILE), text.as_bytes())?;
         Ok(())
+    }
+}
+
+/// `word` as a POSIX shell reads it back: as is when it is plain, else in
+/// single quotes.
+fn shell_word(word: &str) -> String {
+    let plain = !word.is_empty()
+        && word
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_./=,:+@%".contains(c));
+    if plain {
+        word.to_string()
+    } else {
+        format!("'{}'", word.replace('\'', "'\\''"))
     }
 }
 
@@ -140,6 +176,16 @@ pub fn format_utc(secs: u64) -> String {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn shell_words_read_back_as_given() {
+        assert_eq!(super::shell_word("time.end=2"), "time.end=2");
+        assert_eq!(
+            super::shell_word("output.formats=[\"ply\"]"),
+            "'output.formats=[\"ply\"]'"
+        );
+        assert_eq!(super::shell_word("it's"), "'it'\\''s'");
+    }
+
     #[test]
     fn utc_dates() {
         assert_eq!(super::format_utc(0), "1970-01-01T00:00:00Z");

@@ -12,12 +12,14 @@
 //! * `DIR/timing.jsonl`: one JSON line per committed window with its wall-clock
 //!   time, in total and per stage.
 //! * `DIR/checkpoint.wckp`: the last checkpoint (every `output.checkpoint_every`
-//!   windows, at `--stop-after`, on SIGINT / SIGTERM / SIGUSR1, at the rollback
+//!   windows or `output.checkpoint_minutes` of wall time, whichever comes
+//!   first, at `--stop-after`, on SIGINT / SIGTERM / SIGUSR1, at the rollback
 //!   cap and at the end); `weft run --resume DIR` continues from it.
 //! * `DIR/manifest.json`: scene, overrides, version, command lines, machine,
 //!   status and the last good checkpoint.
 //! * `DIR/preview.mp4` or `DIR/preview.gif` and `DIR/render/`: a preview of a
-//!   completed run (skip with `--no-preview`).
+//!   run that completed or was stopped by `--stop-after` (skip with
+//!   `--no-preview`).
 //! * standard output, last line: one JSON object with `state_hash`, `windows`,
 //!   `rollbacks`, `wall_seconds`, `complete` and more.
 //!
@@ -25,6 +27,9 @@
 //! `DIR/repro/` (positions and velocities as PLY, active layers as JSON) and
 //! checkpointed.
 
+mod faults;
+pub mod folder;
+mod line_file;
 pub mod manifest;
 #[cfg(feature = "mpi")]
 pub mod mpi_launch;
@@ -40,7 +45,7 @@ use anyhow::{bail, Context};
 use clap::Args;
 use serde::Serialize;
 use weft_io::checkpoint::{read_checkpoint, write_checkpoint, Checkpoint};
-use weft_io::scene::{load_scene, Scene};
+use weft_io::scene::{load_scene, OutputSettings, Scene};
 use weft_par::Threads;
 use weft_sim::{Engine, Executor, Serial, SimError, World};
 
@@ -51,6 +56,33 @@ use signals::StopRequest;
 
 /// The checkpoint file in a run folder.
 pub const CHECKPOINT_FILE: &str = "checkpoint.wckp";
+
+/// Exit status of a run stopped early with a checkpoint (`--stop-after`,
+/// SIGINT, SIGTERM, SIGUSR1): `EX_TEMPFAIL` of `sysexits.h`, "try again
+/// later", which job scripts can test to requeue.
+pub const EXIT_STOPPED: u8 = 75;
+
+/// The exit statuses, for `weft run --help`.
+pub const EXIT_STATUS_HELP: &str = "\
+Exit status:
+  0         the run reached its end time
+  1         an error: bad input, or a failure during the run (DIR/manifest.json then says
+            \"failed\", with the error; `--resume DIR` continues from the last checkpoint)
+  2         a command-line usage error
+  75        stopped early with a checkpoint by --stop-after, SIGINT, SIGTERM or SIGUSR1:
+            continue with `weft run --resume DIR` (a job script can requeue on 75)
+  130, 143  a second SIGINT or SIGTERM ended the process at once
+
+When standard error is not a terminal, a progress line is logged every 30 s
+(WEFT_PROGRESS_INTERVAL=DURATION sets the interval: 10, 5m).";
+
+/// The exit status of a run that ended as `summary` says.
+pub fn exit_status(summary: &RunSummary) -> ExitCode {
+    match summary.complete {
+        true => ExitCode::SUCCESS,
+        false => ExitCode::from(EXIT_STOPPED),
+    }
+}
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
@@ -67,13 +99,17 @@ pub struct RunArgs {
     /// Override a scene value: `--set key.path=value` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
-    /// Checkpoint and exit cleanly after this much wall time (3600, 45m, 1h30m).
+    /// Checkpoint and exit (status 75) after this much wall time (3600, 45m,
+    /// 1h30m).
     #[arg(long, value_name = "DURATION", value_parser = signals::parse_duration)]
     pub stop_after: Option<Duration>,
-    /// Replace the outputs of an earlier run in the --out folder.
+    /// Write into an --out folder that is not empty: the files an earlier run
+    /// there wrote (its manifest says which) are removed first; other files
+    /// stay, except those named as a run's outputs, which are replaced.
     #[arg(long)]
     pub overwrite: bool,
-    /// Do not render a preview when the run completes.
+    /// Do not render a preview when the run completes or stops at
+    /// --stop-after.
     #[arg(long)]
     pub no_preview: bool,
     /// Worker threads (0: one per logical core). The results are the same
@@ -164,6 +200,8 @@ pub struct RunJob<'a> {
     pub command_line: Vec<String>,
     /// Record timeline spans during these windows (see `weft_sim::trace`).
     pub trace_windows: Option<std::ops::Range<u64>>,
+    /// Time between progress lines when standard error is not a terminal.
+    pub progress_interval: Duration,
 }
 
 pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
@@ -191,7 +229,7 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     }
     let summary = result?;
     println!("{}", serde_json::to_string(&summary)?);
-    Ok(ExitCode::SUCCESS)
+    Ok(exit_status(&summary))
 }
 
 /// Runs `job` on `a.ranks` ranks simulated in this process; returns rank 0's
@@ -249,14 +287,7 @@ fn prepare(a: &RunArgs) -> anyhow::Result<(Scene, PathBuf, bool)> {
             let (Some(scene), Some(out)) = (&a.scene, &a.out) else {
                 bail!("give a scene and --out DIR, or --resume DIR");
             };
-            if out.join(manifest::FILE).exists() && !a.overwrite {
-                bail!(
-                    "{} already holds a run; continue it with `weft run --resume {}`, \
-                     replace it with --overwrite, or choose another --out",
-                    out.display(),
-                    out.display()
-                );
-            }
+            folder::check_fresh_out(out, a.overwrite)?;
             (load_scene(scene, &a.overrides)?, out.clone(), false)
         }
     })
@@ -287,6 +318,7 @@ fn new_job<'a>(
             .trace
             .as_ref()
             .map(|_| a.trace_windows.clone().unwrap_or(0..u64::MAX)),
+        progress_interval: progress::log_interval()?,
     })
 }
 
@@ -302,6 +334,7 @@ pub fn simulate(scene: &Scene, out: &Path, quiet: bool) -> anyhow::Result<RunSum
         preview: false,
         command_line: Vec::new(),
         trace_windows: None,
+        progress_interval: progress::LOG_INTERVAL,
     };
     execute(job, Serial)
 }
@@ -404,6 +437,7 @@ pub(crate) fn execute_prepared<E: Executor>(
         checkpoint,
     } = prepared;
     let mut engine = Engine::new(world, exec)?;
+    let (frame_dt, frame_note) = frame_interval(scene, &engine.world);
     let machine = Machine::this();
     let mut prior_wall = 0.0;
     let mut writer = None;
@@ -414,13 +448,8 @@ pub(crate) fn execute_prepared<E: Executor>(
             .with_context(|| format!("{}", path.display()))?;
         prior_wall = ck.wall_seconds;
         if leader {
-            remove_abandoned_temporaries(out);
-            let outputs = RunOutputs::resume(
-                out,
-                &scene.output.formats,
-                scene.output.frame_rate,
-                &ck.cursors,
-            )?;
+            folder::remove_abandoned_temporaries(out);
+            let outputs = RunOutputs::resume(out, &scene.output.formats, frame_dt, &ck.cursors)?;
             let mut m = Manifest::read(out)?;
             m.overrides = scene.overrides.clone();
             m.end_time = scene.end_time;
@@ -433,7 +462,9 @@ pub(crate) fn execute_prepared<E: Executor>(
             writer = Some((outputs, m));
         }
     } else if leader {
-        let outputs = RunOutputs::create(out, &scene.output.formats, scene.output.frame_rate)?;
+        // Only now that the scene is good: what --overwrite replaces.
+        folder::remove_previous_run(out)?;
+        let outputs = RunOutputs::create(out, &scene.output.formats, frame_dt)?;
         write_objects(out, &engine.world)?;
         let m = Manifest {
             weft_version: env!("CARGO_PKG_VERSION").into(),
@@ -444,6 +475,12 @@ pub(crate) fn execute_prepared<E: Executor>(
             },
             overrides: scene.overrides.clone(),
             end_time: scene.end_time,
+            frame_folders: scene
+                .output
+                .formats
+                .iter()
+                .map(|&f| outputs::frames_folder(f).to_string())
+                .collect(),
             status: String::new(),
             stopped_by: None,
             error: None,
@@ -489,8 +526,17 @@ pub(crate) fn execute_prepared<E: Executor>(
             }
         );
     }
+    if let (false, Some(note)) = (quiet, frame_note) {
+        eprintln!("weft: note: {note}");
+    }
     let end_tick = w.lattice.window_end_at_or_after(scene.end_time);
-    let mut progress = Progress::new(quiet, w.time(), engine.totals.windows, scene.end_time);
+    let mut progress = Progress::new(
+        quiet,
+        job.progress_interval,
+        w.time(),
+        engine.totals.windows,
+        scene.end_time,
+    );
     let mut saver = Saver {
         out,
         hash: &hash,
@@ -498,77 +544,26 @@ pub(crate) fn execute_prepared<E: Executor>(
         written: 0,
         prior_wall,
         started,
+        last_written: Instant::now(),
     };
-    if let Some((outputs, _)) = &mut writer {
-        outputs.frames_due(&engine.world)?;
-    }
-    let mut stopped_by = None;
-    while engine.world.tick < end_tick {
-        if let Some(range) = &job.trace_windows {
-            weft_sim::trace::set_recording(range.contains(&engine.world.window_index));
-        }
-        let stats = match engine.step_window() {
-            Ok(s) => s,
-            Err(SimError::Interrupted { .. }) => {
-                stopped_by = Some(job.stop.reason().unwrap_or("interrupt"));
-                break;
-            }
-            Err(e) => {
-                progress.finish();
-                if let Some((outputs, manifest)) = &mut writer {
-                    outputs.flush()?;
-                    if matches!(e, SimError::RollbackCap { .. }) {
-                        // The engine is back at the window start: the last commit.
-                        let _ = save_repro(out, &engine.world);
-                        if let Ok(r) = saver.save(&engine, outputs) {
-                            manifest.last_checkpoint = Some(r);
-                        }
-                    }
-                    manifest.status = "failed".into();
-                    manifest.error = Some(e.to_string());
-                    let _ = manifest.write(out);
-                }
-                return Err(e.into());
-            }
-        };
-        let every = scene.output.checkpoint_every;
-        if let Some((outputs, manifest)) = &mut writer {
-            outputs.record_window(&stats)?;
-            outputs.frames_due(&engine.world)?;
-            progress.update(&progress::Snapshot {
-                time: engine.world.time(),
-                windows: engine.totals.windows,
-                rollbacks: engine.totals.rollbacks,
-                active: stats.active_stencils,
-                depth: stats.max_depth,
-            });
-            if every > 0 && engine.world.window_index % every == 0 && engine.world.tick < end_tick {
-                manifest.last_checkpoint = Some(saver.save(&engine, outputs)?);
-                manifest.write(out)?;
-            }
-        }
-        let stop = job.stop.requested();
-        if engine.executor().any_rank(stop)? {
-            // A rank that was not asked itself names the request it joined.
-            stopped_by = Some(
-                job.stop
-                    .reason()
-                    .unwrap_or("a stop request on another rank"),
-            );
-            break;
-        }
-    }
+    // Every error from here on leaves the manifest `failed`, naming it.
+    let ended = step_to_end(
+        &mut engine,
+        &job,
+        end_tick,
+        &mut writer,
+        &mut saver,
+        &mut progress,
+    );
     progress.finish();
+    let stopped_by = match ended {
+        Ok(stopped_by) => stopped_by,
+        Err(e) => return Err(record_failure(e, &engine, &mut writer, &mut saver)),
+    };
     let complete = stopped_by.is_none();
-    let mut frames = 0;
-    if let Some((outputs, manifest)) = &mut writer {
-        // Also at the end: a completed run can be extended with --resume.
-        manifest.last_checkpoint = Some(saver.save(&engine, outputs)?);
-        manifest.status = if complete { "complete" } else { "stopped" }.into();
-        manifest.stopped_by = stopped_by.map(String::from);
-        manifest.write(out)?;
-        frames = outputs.frames_written();
-    }
+    let frames = writer
+        .as_ref()
+        .map_or(0, |(outputs, _)| outputs.frames_written());
     if !quiet {
         if let Some(why) = stopped_by {
             eprintln!(
@@ -579,7 +574,10 @@ pub(crate) fn execute_prepared<E: Executor>(
             );
         }
     }
-    if complete && job.preview && leader {
+    // A run stopped by --stop-after has time left for a preview of the
+    // frames so far; one stopped by a signal is asked to end now.
+    let previewed = complete || stopped_by == Some(signals::STOP_AFTER);
+    if previewed && job.preview && leader {
         preview(out, job.quiet, scene_camera(scene));
     }
     let w = &engine.world;
@@ -608,14 +606,168 @@ pub(crate) fn execute_prepared<E: Executor>(
     })
 }
 
+/// Steps `engine` to `end_tick` or to a stop request, writing every
+/// committed window's outputs and the checkpoints, then a last checkpoint;
+/// returns what stopped the run early, if anything.
+fn step_to_end<E: Executor>(
+    engine: &mut Engine<E>,
+    job: &RunJob<'_>,
+    end_tick: u64,
+    writer: &mut Option<(RunOutputs, Manifest)>,
+    saver: &mut Saver<'_>,
+    progress: &mut Progress,
+) -> anyhow::Result<Option<&'static str>> {
+    let out = job.out;
+    let mut stopped_by = None;
+    if let Some((outputs, _)) = writer {
+        outputs.frames_due(&engine.world)?;
+    }
+    while engine.world.tick < end_tick {
+        if let Some(range) = &job.trace_windows {
+            weft_sim::trace::set_recording(range.contains(&engine.world.window_index));
+        }
+        let stats = match engine.step_window() {
+            Ok(s) => s,
+            Err(SimError::Interrupted { .. }) => {
+                stopped_by = Some(job.stop.reason().unwrap_or("interrupt"));
+                break;
+            }
+            Err(e) => return Err(e.into()),
+        };
+        if let Some((outputs, manifest)) = writer {
+            outputs.record_window(&stats)?;
+            outputs.frames_due(&engine.world)?;
+            progress.update(&progress::Snapshot {
+                time: engine.world.time(),
+                windows: engine.totals.windows,
+                rollbacks: engine.totals.rollbacks,
+                active: stats.active_stencils,
+                depth: stats.max_depth,
+            });
+            if saver.due(&job.scene.output, engine.world.window_index)
+                && engine.world.tick < end_tick
+            {
+                manifest.last_checkpoint = Some(saver.save(engine, outputs)?);
+                manifest.write(out)?;
+            }
+        }
+        let stop = job.stop.requested();
+        if engine.executor().any_rank(stop)? {
+            // A rank that was not asked itself names the request it joined.
+            stopped_by = Some(
+                job.stop
+                    .reason()
+                    .unwrap_or("a stop request on another rank"),
+            );
+            break;
+        }
+    }
+    if let Some((outputs, manifest)) = writer {
+        // Also at the end: a completed run can be extended with --resume.
+        manifest.last_checkpoint = Some(saver.save(engine, outputs)?);
+        manifest.status = if stopped_by.is_none() {
+            "complete"
+        } else {
+            "stopped"
+        }
+        .into();
+        manifest.stopped_by = stopped_by.map(String::from);
+        manifest.write(out)?;
+    }
+    Ok(stopped_by)
+}
+
+/// Records in the manifest that the run failed with `e` and returns the error
+/// to report. At the rollback cap the engine is back at the window start (the
+/// last commit): that state is kept for a reproduction and checkpointed. Any
+/// other failure (an engine error, a write that failed) checkpoints nothing:
+/// the outputs may lag the engine, and the last good checkpoint stays the one
+/// to resume from.
+fn record_failure<E: Executor>(
+    e: anyhow::Error,
+    engine: &Engine<E>,
+    writer: &mut Option<(RunOutputs, Manifest)>,
+    saver: &mut Saver<'_>,
+) -> anyhow::Error {
+    let Some((outputs, manifest)) = writer else {
+        return e;
+    };
+    let out = saver.out;
+    let engine_error = e.downcast_ref::<SimError>();
+    if matches!(engine_error, Some(SimError::RollbackCap { .. })) {
+        let _ = save_repro(out, &engine.world);
+        if let Ok(r) = saver.save(engine, outputs) {
+            manifest.last_checkpoint = Some(r);
+        }
+    }
+    manifest.status = "failed".into();
+    manifest.error = Some(crate::error_text(&e));
+    let recorded = manifest.write(out);
+    if engine_error.is_some() && recorded.is_ok() {
+        return e;
+    }
+    // Not the simulation's fault: say how to go on.
+    let resume = match &manifest.last_checkpoint {
+        Some(ck) => format!(
+            "the run can go on from its last checkpoint (window {}, t = {:.6} s): remove the \
+             cause, then `weft run --resume {}`",
+            ck.window,
+            ck.time,
+            out.display()
+        ),
+        None => format!(
+            "the run failed before its first checkpoint: remove the cause, then start it \
+             again: `{}`",
+            manifest.restart_command(out)
+        ),
+    };
+    let manifest_note = match recorded {
+        Ok(()) => String::new(),
+        Err(m) => format!(
+            "; {} could not record the failure either ({})",
+            out.join(manifest::FILE).display(),
+            crate::error_text(&m)
+        ),
+    };
+    anyhow::anyhow!("{}{manifest_note}\n  {resume}", crate::error_text(&e))
+}
+
+/// Simulated seconds between frames: `1 / output.frame_rate`, but at least one
+/// window, as frames are committed states and those exist only at window
+/// boundaries (a faster rate wrote the same state several times over). When
+/// the scene asks for more, also the note that says so.
+fn frame_interval(scene: &Scene, world: &World) -> (f64, Option<String>) {
+    let asked = 1.0 / scene.output.frame_rate;
+    let window = world.lattice.seconds(world.lattice.window());
+    // Within rounding of the window (100 frames/s of 0.01 s windows) is no news.
+    if asked >= window * (1.0 - 1e-9) {
+        return (asked.max(window), None);
+    }
+    let note = format!(
+        "output.frame_rate = {} frames/s is above the window rate ({:.6} windows/s of {:.4e} s): \
+         frames are committed states, taken at window boundaries, so one frame per window is \
+         written instead; lower output.frame_rate, or shorten the window (time.window or \
+         time.steps_per_window)",
+        scene.output.frame_rate,
+        1.0 / window,
+        window
+    );
+    (window, Some(note))
+}
+
 /// The checkpoint in run folder `out`, if it can be resumed by a scene whose
 /// hash is `hash`.
 fn read_resumable(out: &Path, hash: &str) -> anyhow::Result<Checkpoint> {
     let path = out.join(CHECKPOINT_FILE);
     if !path.exists() {
+        let restart = Manifest::read(out).map_or_else(
+            |_| format!("weft run SCENE --out {} --overwrite", out.display()),
+            |m| m.restart_command(out),
+        );
         bail!(
-            "{} has no checkpoint to resume from ({} is missing); the run stopped before \
-             its first checkpoint — start it again",
+            "{} has no checkpoint to resume from ({} is missing): the run ended before its \
+             first checkpoint, so there is nothing to continue; start it again, replacing \
+             it: `{restart}`",
             out.display(),
             path.display()
         );
@@ -643,9 +795,22 @@ struct Saver<'a> {
     written: u64,
     prior_wall: f64,
     started: Instant,
+    /// When the last checkpoint was written (the start, before the first).
+    last_written: Instant,
 }
 
 impl Saver<'_> {
+    /// Whether a checkpoint is due after committing window `window` (its
+    /// index counted from the start of the run): every `checkpoint_every`
+    /// windows, and once `checkpoint_minutes` of wall time have passed
+    /// since the last one.
+    fn due(&self, output: &OutputSettings, window: u64) -> bool {
+        let every = output.checkpoint_every;
+        let minutes = output.checkpoint_minutes;
+        (every > 0 && window % every == 0)
+            || (minutes > 0.0 && self.last_written.elapsed().as_secs_f64() >= minutes * 60.0)
+    }
+
     /// Flushes the outputs and checkpoints the engine's committed state.
     fn save<E: Executor>(
         &mut self,
@@ -662,9 +827,13 @@ impl Saver<'_> {
         };
         self.written += 1;
         let n = self.written;
-        write_checkpoint(&self.out.join(CHECKPOINT_FILE), &ck, || {
+        let path = self.out.join(CHECKPOINT_FILE);
+        faults::injected("write:checkpoint", n)
+            .with_context(|| format!("cannot write the checkpoint {}", path.display()))?;
+        write_checkpoint(&path, &ck, || {
             weft_sim::failpoint::hit("checkpoint-rename", n)
         })?;
+        self.last_written = Instant::now();
         let w = &engine.world;
         Ok(CheckpointRef {
             file: CHECKPOINT_FILE.into(),
@@ -673,26 +842,6 @@ impl Saver<'_> {
             time: w.time(),
             written: manifest::now_utc(),
         })
-    }
-}
-
-/// Removes the temporary files a killed process left behind: a checkpoint or
-/// frame whose write never reached its rename (the checkpoint is then the
-/// previous one, and the frame is written again after the resume).
-fn remove_abandoned_temporaries(out: &Path) {
-    // Atomic writes go through `.NAME.PID.N.tmp` beside their target: a run
-    // killed mid-write leaves one behind in the folder or a frame folder.
-    for dir in ["", "frames", "frames-obj", "frames-vtk"] {
-        let Ok(entries) = std::fs::read_dir(out.join(dir)) else {
-            continue;
-        };
-        for e in entries.flatten() {
-            let name = e.file_name();
-            let name = name.to_string_lossy();
-            if name.starts_with('.') && name.ends_with(".tmp") {
-                let _ = std::fs::remove_file(e.path());
-            }
-        }
     }
 }
 
@@ -733,8 +882,8 @@ pub fn camera_of_run(dir: &Path) -> Option<weft_render::Camera> {
     scene_camera(&scene)
 }
 
-/// Renders the preview of a completed run; a failure is reported, not fatal
-/// (the simulation's outputs are already complete).
+/// Renders the preview of the frames so far; a failure is reported, not fatal
+/// (the simulation's outputs are already written).
 fn preview(out: &Path, quiet: bool, camera: Option<weft_render::Camera>) {
     let opts = weft_render::RenderOptions {
         width: 480,

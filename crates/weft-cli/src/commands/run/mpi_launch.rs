@@ -54,7 +54,7 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     let failed = setup
         .as_ref()
         .err()
-        .map(|e| format!("{e:#}"))
+        .map(crate::error_text)
         .unwrap_or_default();
     let all = transport
         .all_gather(failed.into_bytes())
@@ -94,7 +94,8 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
             if rank == 0 {
                 println!("{}", serde_json::to_string(&summary)?);
             }
-            Ok(ExitCode::SUCCESS)
+            // Every rank stopped at the same window: the same status.
+            Ok(super::exit_status(&summary))
         }
         Err(e) => {
             let same_everywhere = matches!(
@@ -103,11 +104,11 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
             );
             if same_everywhere {
                 if rank == 0 {
-                    eprintln!("error: {e:#}");
+                    eprintln!("error: {}", crate::error_text(&e));
                 }
                 return Ok(ExitCode::from(1));
             }
-            eprintln!("error: on rank {rank}: {e:#}");
+            eprintln!("error: on rank {rank}: {}", crate::error_text(&e));
             transport.abort(1)
         }
     }

@@ -5,9 +5,11 @@
 //! so a run resumed from a checkpoint rewrites the same bytes: on resume the
 //! line files are cut back to the lengths the checkpoint recorded and frames
 //! after its frame cursor are removed, then writing simply continues.
+//!
+//! A window's lines and a frame's line reach their files as they are written
+//! (see `line_file.rs`), a frame's line after its files, so `weft render DIR`
+//! works on a run in progress.
 
-use std::fs::{File, OpenOptions};
-use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
@@ -15,6 +17,9 @@ use serde::{Deserialize, Serialize};
 use weft_io::checkpoint::OutputCursors;
 use weft_io::scene::FrameFormat;
 use weft_sim::{WindowStats, World};
+
+use super::faults;
+use super::line_file::LineFile;
 
 /// The folder (under the output folder) that frames of `format` go to.
 pub fn frames_folder(format: FrameFormat) -> &'static str {
@@ -27,6 +32,10 @@ pub fn frames_folder(format: FrameFormat) -> &'static str {
 
 /// The VTK series index, in the output folder.
 pub const PVD_FILE: &str = "frames.pvd";
+/// The line files, in the output folder.
+pub const STATS_FILE: &str = "stats.jsonl";
+pub const TIMING_FILE: &str = "timing.jsonl";
+pub const FRAMES_FILE: &str = "frames.jsonl";
 
 /// One line of `frames.jsonl`.
 #[derive(Debug, Serialize, Deserialize)]
@@ -41,35 +50,32 @@ pub struct FrameRecord {
 pub struct RunOutputs {
     out: PathBuf,
     formats: Vec<FrameFormat>,
+    /// Simulated seconds between frames.
     frame_dt: f64,
-    stats: BufWriter<File>,
-    timing: BufWriter<File>,
-    frames: BufWriter<File>,
+    stats: LineFile,
+    timing: LineFile,
+    frames: LineFile,
     next_frame: u64,
     /// (time, file relative to the folder) of every VTK frame so far.
     pvd: Vec<(f64, String)>,
 }
 
 impl RunOutputs {
-    /// Starts the files of a fresh run (replacing any of a previous one).
-    pub fn create(out: &Path, formats: &[FrameFormat], frame_rate: f64) -> anyhow::Result<Self> {
+    /// Starts the files of a fresh run (replacing any of a previous one),
+    /// with a frame every `frame_dt` simulated seconds.
+    pub fn create(out: &Path, formats: &[FrameFormat], frame_dt: f64) -> anyhow::Result<Self> {
         for &f in formats {
             let dir = out.join(frames_folder(f));
             std::fs::create_dir_all(&dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;
         }
-        let open = |name: &str| -> anyhow::Result<BufWriter<File>> {
-            let p = out.join(name);
-            let f = File::create(&p).with_context(|| format!("cannot create {}", p.display()))?;
-            Ok(BufWriter::new(f))
-        };
         Ok(Self {
             out: out.to_path_buf(),
             formats: formats.to_vec(),
-            frame_dt: 1.0 / frame_rate,
-            stats: open("stats.jsonl")?,
-            timing: open("timing.jsonl")?,
-            frames: open("frames.jsonl")?,
+            frame_dt,
+            stats: LineFile::create(&out.join(STATS_FILE))?,
+            timing: LineFile::create(&out.join(TIMING_FILE))?,
+            frames: LineFile::create(&out.join(FRAMES_FILE))?,
             next_frame: 0,
             pvd: Vec::new(),
         })
@@ -79,40 +85,20 @@ impl RunOutputs {
     pub fn resume(
         out: &Path,
         formats: &[FrameFormat],
-        frame_rate: f64,
+        frame_dt: f64,
         cursors: &OutputCursors,
     ) -> anyhow::Result<Self> {
-        let reopen = |name: &str, len: u64| -> anyhow::Result<BufWriter<File>> {
-            let p = out.join(name);
-            let f = OpenOptions::new()
-                .read(true)
-                .write(true)
-                .open(&p)
-                .with_context(|| format!("cannot reopen {} to continue it", p.display()))?;
-            let have = f.metadata()?.len();
-            if have < len {
-                bail!(
-                    "{} holds {have} bytes but the checkpoint recorded {len}: the run folder \
-                     was modified after the checkpoint, cannot continue it byte for byte",
-                    p.display()
-                );
-            }
-            // Lines written after the checkpoint are written again.
-            f.set_len(len)?;
-            let mut f = f;
-            std::io::Seek::seek(&mut f, std::io::SeekFrom::End(0))?;
-            Ok(BufWriter::new(f))
-        };
-        let stats = reopen("stats.jsonl", cursors.stats_bytes)?;
-        let timing = reopen("timing.jsonl", cursors.timing_bytes)?;
-        let frames = reopen("frames.jsonl", cursors.frames_bytes)?;
+        // Lines written after the checkpoint are cut, and written again.
+        let stats = LineFile::resume(&out.join(STATS_FILE), cursors.stats_bytes)?;
+        let timing = LineFile::resume(&out.join(TIMING_FILE), cursors.timing_bytes)?;
+        let frames = LineFile::resume(&out.join(FRAMES_FILE), cursors.frames_bytes)?;
         let mut pvd = Vec::new();
-        let text = std::fs::read_to_string(out.join("frames.jsonl"))?;
+        let text = std::fs::read_to_string(out.join(FRAMES_FILE))?;
         for (n, line) in text.lines().enumerate() {
             let r: FrameRecord = serde_json::from_str(line).with_context(|| {
                 format!(
                     "{}:{}: malformed frame record",
-                    out.join("frames.jsonl").display(),
+                    out.join(FRAMES_FILE).display(),
                     n + 1
                 )
             })?;
@@ -121,7 +107,7 @@ impl RunOutputs {
         if pvd.len() as u64 != cursors.next_frame {
             bail!(
                 "{} lists {} frames, the checkpoint expects {}",
-                out.join("frames.jsonl").display(),
+                out.join(FRAMES_FILE).display(),
                 pvd.len(),
                 cursors.next_frame
             );
@@ -134,7 +120,7 @@ impl RunOutputs {
         Ok(Self {
             out: out.to_path_buf(),
             formats: formats.to_vec(),
-            frame_dt: 1.0 / frame_rate,
+            frame_dt,
             stats,
             timing,
             frames,
@@ -153,8 +139,9 @@ impl RunOutputs {
 
     /// Appends a committed window's lines.
     pub fn record_window(&mut self, stats: &WindowStats) -> anyhow::Result<()> {
-        writeln!(self.stats, "{}", serde_json::to_string(stats)?)?;
-        writeln!(self.timing, "{}", serde_json::to_string(&stats.timing())?)?;
+        self.stats.append(&serde_json::to_string(stats)?)?;
+        self.timing
+            .append(&serde_json::to_string(&stats.timing())?)?;
         Ok(())
     }
 
@@ -169,6 +156,12 @@ impl RunOutputs {
 
     fn write_frame(&mut self, world: &World) -> anyhow::Result<()> {
         let k = self.next_frame;
+        faults::injected("write:frame", k).with_context(|| {
+            format!(
+                "cannot write frame {k} in {}",
+                self.out.join(frames_folder(self.formats[0])).display()
+            )
+        })?;
         let mut first = None;
         for &format in &self.formats {
             let rel = format!("{}/{}", frames_folder(format), frame_name(k, format));
@@ -192,29 +185,22 @@ impl RunOutputs {
             time: world.time(),
             window: world.window_index,
         };
-        writeln!(self.frames, "{}", serde_json::to_string(&rec)?)?;
+        self.frames.append(&serde_json::to_string(&rec)?)?;
         self.next_frame += 1;
         Ok(())
     }
 
-    /// Flushes every file and says where each stands.
-    pub fn cursors(&mut self) -> anyhow::Result<OutputCursors> {
-        self.flush()?;
-        let len =
-            |w: &BufWriter<File>| -> anyhow::Result<u64> { Ok(w.get_ref().metadata()?.len()) };
+    /// Where every file stands, made durable first: a checkpoint records it.
+    pub fn cursors(&self) -> anyhow::Result<OutputCursors> {
+        for f in [&self.stats, &self.timing, &self.frames] {
+            f.sync()?;
+        }
         Ok(OutputCursors {
             next_frame: self.next_frame,
-            stats_bytes: len(&self.stats)?,
-            timing_bytes: len(&self.timing)?,
-            frames_bytes: len(&self.frames)?,
+            stats_bytes: self.stats.len(),
+            timing_bytes: self.timing.len(),
+            frames_bytes: self.frames.len(),
         })
-    }
-
-    pub fn flush(&mut self) -> anyhow::Result<()> {
-        self.stats.flush()?;
-        self.timing.flush()?;
-        self.frames.flush()?;
-        Ok(())
     }
 }
 

@@ -1,16 +1,31 @@
-//! The progress line of `weft run` on a terminal: simulated / end time,
-//! windows per second, rollbacks, active contacts and an ETA, redrawn in place
-//! at most five times a second. Silent when standard error is not a terminal
-//! or with `--quiet`.
+//! The progress of `weft run` on standard error: on a terminal, a line
+//! redrawn in place at most five times a second (simulated / end time,
+//! windows per second, rollbacks, active contacts, ETA); elsewhere (a batch
+//! job's log) one line every 30 seconds, or every `WEFT_PROGRESS_INTERVAL`
+//! (a duration: `10`, `5m`). Nothing with `--quiet`.
 
 use std::io::{IsTerminal, Write};
-use std::time::Instant;
+use std::time::{Duration, Instant};
+
+/// Time between the lines of a log (standard error not a terminal).
+pub const LOG_INTERVAL: Duration = Duration::from_secs(30);
+/// Sets the log interval (for tests and impatient users).
+pub const LOG_INTERVAL_VARIABLE: &str = "WEFT_PROGRESS_INTERVAL";
+
+/// How progress is shown.
+enum Mode {
+    Off,
+    /// Redrawn in place on a terminal.
+    Line,
+    /// One line per interval, for a log file.
+    Log(Duration),
+}
 
 pub struct Progress {
-    enabled: bool,
+    mode: Mode,
     started: Instant,
     last_draw: Option<Instant>,
-    /// (wall instant, simulated time, windows) when this process started.
+    /// (simulated time, windows) when this process started.
     origin: (f64, u64),
     end_time: f64,
 }
@@ -25,9 +40,25 @@ pub struct Snapshot {
 }
 
 impl Progress {
-    pub fn new(quiet: bool, start_time: f64, start_windows: u64, end_time: f64) -> Self {
+    /// Progress from simulated time `start_time` after `start_windows`
+    /// windows to `end_time`, logged every `log_interval` when standard
+    /// error is not a terminal.
+    pub fn new(
+        quiet: bool,
+        log_interval: Duration,
+        start_time: f64,
+        start_windows: u64,
+        end_time: f64,
+    ) -> Self {
+        let mode = if quiet {
+            Mode::Off
+        } else if std::io::stderr().is_terminal() {
+            Mode::Line
+        } else {
+            Mode::Log(log_interval)
+        };
         Self {
-            enabled: !quiet && std::io::stderr().is_terminal(),
+            mode,
             started: Instant::now(),
             last_draw: None,
             origin: (start_time, start_windows),
@@ -36,11 +67,17 @@ impl Progress {
     }
 
     pub fn update(&mut self, s: &Snapshot) {
-        if !self.enabled
-            || self
-                .last_draw
-                .is_some_and(|t| t.elapsed().as_secs_f64() < 0.2)
-        {
+        let (interval, at_once) = match self.mode {
+            Mode::Off => return,
+            Mode::Line => (Duration::from_millis(200), true),
+            // The first log line after one interval, not at the start.
+            Mode::Log(every) => (every, false),
+        };
+        let due = match self.last_draw {
+            Some(t) => t.elapsed() >= interval,
+            None => at_once || self.started.elapsed() >= interval,
+        };
+        if !due {
             return;
         }
         self.last_draw = Some(Instant::now());
@@ -48,13 +85,29 @@ impl Progress {
         let rate = (s.windows - self.origin.1) as f64 / wall;
         let sim_rate = (s.time - self.origin.0) / wall;
         let frac = (s.time / self.end_time).clamp(0.0, 1.0);
-        let width = 24;
-        let filled = (frac * width as f64).round() as usize;
         let eta = if sim_rate > 0.0 {
             format_eta((self.end_time - s.time).max(0.0) / sim_rate)
         } else {
             "--".into()
         };
+        let mut err = std::io::stderr().lock();
+        if let Mode::Log(_) = self.mode {
+            let _ = writeln!(
+                err,
+                "weft: progress t = {:.4}/{:.4} s ({:.1}%), {:.2} windows/s, {} rollbacks, \
+                 {} active (depth {}), ETA {eta}",
+                s.time,
+                self.end_time,
+                100.0 * frac,
+                rate,
+                s.rollbacks,
+                s.active,
+                s.depth
+            );
+            return;
+        }
+        let width = 24;
+        let filled = (frac * width as f64).round() as usize;
         let line = format!(
             "[{}{}] {:.4}/{:.4} s  {:.2} win/s  rollbacks {}  active {} (depth {})  ETA {}",
             "#".repeat(filled),
@@ -67,18 +120,27 @@ impl Progress {
             s.depth,
             eta
         );
-        let mut err = std::io::stderr().lock();
         let _ = write!(err, "\r\x1b[2K{line}");
         let _ = err.flush();
     }
 
-    /// Clears the line so the next output starts clean.
+    /// Clears the terminal line so the next output starts clean.
     pub fn finish(&mut self) {
-        if self.enabled && self.last_draw.is_some() {
+        if matches!(self.mode, Mode::Line) && self.last_draw.is_some() {
             let mut err = std::io::stderr().lock();
             let _ = write!(err, "\r\x1b[2K");
             let _ = err.flush();
         }
+    }
+}
+
+/// The log interval: `WEFT_PROGRESS_INTERVAL` if set, else 30 s. One that
+/// cannot be read is an error, not a silent 30 s.
+pub fn log_interval() -> anyhow::Result<Duration> {
+    match std::env::var(LOG_INTERVAL_VARIABLE) {
+        Ok(text) => super::signals::parse_duration(&text)
+            .map_err(|e| anyhow::anyhow!("{LOG_INTERVAL_VARIABLE}: {e}")),
+        Err(_) => Ok(LOG_INTERVAL),
     }
 }
 

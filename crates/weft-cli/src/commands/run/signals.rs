@@ -9,7 +9,10 @@ use std::time::Duration;
 
 use signal_hook::consts::{SIGINT, SIGTERM, SIGUSR1};
 
-const REASONS: [&str; 5] = ["", "SIGINT", "SIGTERM", "SIGUSR1", "stop-after"];
+/// The reason given when the `--stop-after` deadline passed.
+pub const STOP_AFTER: &str = "stop-after";
+
+const REASONS: [&str; 5] = ["", "SIGINT", "SIGTERM", "SIGUSR1", STOP_AFTER];
 const DEADLINE: usize = 4;
 
 /// Why a run should stop, shared with the engine.
