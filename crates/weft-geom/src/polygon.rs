@@ -13,8 +13,10 @@
 //!
 //! A polygon is refused, not guessed at, when it has no area (collinear
 //! corners), two consecutive corners coincide, it folds back on itself at a
-//! corner, or two of its edges cross or touch. A simple polygon is always
-//! triangulated, and never with a zero-area triangle: a corner where the
+//! corner, or two of its edges cross or touch. A strictly convex polygon is
+//! fanned from its first corner (exact for it, and what weft has always made
+//! of such faces). Any other simple polygon is ear-clipped, and never into a
+//! zero-area triangle: a corner where the
 //! boundary goes straight on (zero turn) is never the tip of an ear, and an ear
 //! is clipped only when no other corner lies in it or on its border, so such a
 //! corner ends up as the base corner of a neighbouring ear. Among the ears, the
@@ -85,6 +87,11 @@ pub fn triangulate(corners: &[DVec3]) -> Result<Vec<[usize; 3]>, PolygonError> {
     }
     let p = project(corners)?;
     check_simple(corners, &p)?;
+    if (0..n).all(|i| o2(p[(i + n - 1) % n], p[i], p[(i + 1) % n]) > 0) {
+        // Strictly convex: the fan from the first corner is exact, and it is
+        // what weft always made of such faces (results stay the same).
+        return Ok((1..n - 1).map(|k| [0, k, k + 1]).collect());
+    }
     clip_ears(&p)
 }
 
