@@ -297,3 +297,18 @@ fn inconsistent_orientation_warning() {
         "{msg}"
     );
 }
+
+#[test]
+fn coincident_vertices_are_grouped_exactly() {
+    use weft_core::coincident::coincident_vertices;
+    let p = [
+        DVec3::new(1.0, 2.0, 3.0),
+        DVec3::new(0.0, 0.0, 0.0),
+        DVec3::new(1.0, 2.0, 3.0),
+        DVec3::new(-0.0, 0.0, -0.0), // the same position as vertex 1
+        DVec3::new(1.0, 2.0, 3.0 + 1e-15),
+        DVec3::new(1.0, 2.0, 3.0),
+    ];
+    assert_eq!(coincident_vertices(&p), vec![vec![0, 2, 5], vec![1, 3]]);
+    assert!(coincident_vertices(&square().positions).is_empty());
+}
