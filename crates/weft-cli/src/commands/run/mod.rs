@@ -403,6 +403,9 @@ pub(crate) fn execute_prepared<E: Executor>(
         hash,
         checkpoint,
     } = prepared;
+    if leader && !job.quiet {
+        super::startup::print(&super::startup::warnings(scene, &world));
+    }
     let mut engine = Engine::new(world, exec)?;
     let machine = Machine::this();
     let mut prior_wall = 0.0;
