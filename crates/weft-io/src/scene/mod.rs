@@ -448,7 +448,7 @@ fn uv_rest(scene: &Path, c: &ClothSection, key: &str) -> Result<Vec<DVec3>, Scen
                         scene,
                         rest_key,
                         format!(
-                            "{f}{line}: vertex {} has two texture coordinates ({:?} and {:?}): a UV \
+                            "{f}{line}: v {} has two texture coordinates ({:?} and {:?}): a UV \
                              seam; \"uv\" needs one per vertex (split the mesh along the seam)",
                             v + 1,
                             prev,
@@ -468,7 +468,7 @@ fn uv_rest(scene: &Path, c: &ClothSection, key: &str) -> Result<Vec<DVec3>, Scen
                 scene,
                 format!("{key}.rest"),
                 format!(
-                    "{f}: vertex {} is in no face, so it has no texture coordinate",
+                    "{f}: v {} is in no face, so it has no texture coordinate",
                     v + 1
                 ),
             )),
