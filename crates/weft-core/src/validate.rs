@@ -83,20 +83,18 @@ pub enum MeshError {
         tolerance: f64,
         longest_edge: f64,
     },
-    /// A triangle of a sound shape whose `area` is at most `tolerance`,
+    /// A triangle of a sound shape whose `area` is at most
     /// [`DEGENERATE_AREA_REL`] times the square of the mesh's extent `extent`
     /// (its bounding-box diagonal): lost in the rounding of coordinates that
     /// large. `far_vertex` (at `far_position`) is the vertex farthest from the
-    /// triangle, `distance` away: the usual culprit is a stray vertex.
+    /// triangle: the usual culprit is a stray vertex.
     TooSmallForExtent {
         triangle: usize,
         vertices: [u32; 3],
-        area: f64,
-        tolerance: f64,
-        extent: f64,
         far_vertex: u32,
+        area: f64,
+        extent: f64,
         far_position: DVec3,
-        distance: f64,
     },
     DuplicateTriangle {
         triangle: usize,
@@ -179,21 +177,19 @@ impl MeshError {
             Self::TooSmallForExtent {
                 triangle,
                 vertices,
-                area,
-                tolerance,
-                extent,
                 far_vertex,
+                area,
+                extent,
                 far_position,
-                distance,
             } => format!(
                 "{} ({}) has an area of {area:.3e} m², too small to resolve in a mesh \
-                 {extent:.3e} m across (below {tolerance:.3e} m², areas are lost in the rounding \
-                 of its coordinates; this triangle needs the mesh to span at most {:.3e} m). \
-                 The farthest vertex from it is {} at ({:e}, {:e}, {:e}), {distance:.3e} m \
-                 away: delete it if it is a stray vertex; if the mesh is really that large, \
-                 its units are wrong (weft uses metres)",
+                 {extent:.3e} m across (below {:.3e} m², areas are lost in the rounding of its \
+                 coordinates; this triangle needs the mesh to span at most {:.3e} m). The \
+                 farthest vertex from it is {} at ({:e}, {:e}, {:e}): delete it if it is a stray \
+                 vertex; if the mesh is really that large, its units are wrong (weft uses metres)",
                 names.triangle(*triangle),
                 names.vertices(vertices),
+                DEGENERATE_AREA_REL * extent * extent,
                 (area / DEGENERATE_AREA_REL).sqrt(),
                 names.vertex(*far_vertex),
                 far_position.x,
@@ -380,7 +376,8 @@ fn check_areas(mesh: &TriMesh) -> Result<(), MeshError> {
                 longest_edge,
             });
         }
-        let (far_vertex, distance) = mesh
+        // The vertex farthest from the triangle (the first of equals).
+        let far_vertex = mesh
             .positions
             .iter()
             .map(|&p| (p - a).length())
@@ -388,16 +385,15 @@ fn check_areas(mesh: &TriMesh) -> Result<(), MeshError> {
             .fold(
                 (0, 0.0),
                 |best, (v, d)| if d > best.1 { (v, d) } else { best },
-            );
+            )
+            .0;
         return Err(MeshError::TooSmallForExtent {
             triangle: f,
             vertices,
-            area,
-            tolerance,
-            extent,
             far_vertex: far_vertex as u32,
+            area,
+            extent,
             far_position: mesh.positions[far_vertex],
-            distance,
         });
     }
     Ok(())

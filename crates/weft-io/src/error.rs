@@ -39,8 +39,9 @@ pub enum IoError {
     Mesh {
         path: PathBuf,
         line: Option<usize>,
+        /// Boxed: it is large, and every I/O result carries this type.
         #[source]
-        source: MeshError,
+        source: Box<MeshError>,
         message: String,
     },
     /// The file's extension names no format weft reads.

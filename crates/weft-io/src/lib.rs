@@ -143,7 +143,7 @@ pub fn read_mesh(path: &Path) -> Result<MeshFile, IoError> {
             path: path.to_path_buf(),
             line: source.triangle().and_then(|f| file.line_of_triangle(f)),
             message: source.describe(&file.names()),
-            source,
+            source: Box::new(source),
         }),
     }
 }

@@ -743,9 +743,9 @@ mod read_mesh_validation {
             e,
             IoError::Mesh {
                 line: Some(8),
-                source: MeshError::DegenerateTriangle { triangle: 1, .. },
+                ref source,
                 ..
-            }
+            } if matches!(**source, MeshError::DegenerateTriangle { triangle: 1, .. })
         ));
         let msg = e.to_string();
         // Elements as the file numbers them: OBJ `v` numbers, faces by line.
@@ -799,10 +799,10 @@ mod read_mesh_validation {
             matches!(
                 e,
                 IoError::Mesh {
-                    source: MeshError::Empty,
+                    ref source,
                     line: None,
                     ..
-                }
+                } if **source == MeshError::Empty
             ),
             "{e}"
         );
@@ -957,13 +957,8 @@ mod import {
         assert!(
             matches!(
                 e,
-                IoError::Mesh {
-                    source: MeshError::TooSmallForExtent {
-                        far_vertex: 1939,
-                        ..
-                    },
-                    ..
-                }
+                IoError::Mesh { ref source, .. }
+                    if matches!(**source, MeshError::TooSmallForExtent { far_vertex: 1939, .. })
             ),
             "{msg}"
         );

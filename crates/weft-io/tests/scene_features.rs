@@ -288,7 +288,10 @@ fn rest_shape_from_uvs() {
     seam = seam.replacen("f 1/1 5/5 2/2", "f 1/9 5/5 2/2", 1);
     write(dir.path(), "seam.obj", &seam);
     let e = err(dir.path(), &text.replace("sheet.obj", "seam.obj"), &[]);
-    assert_has(&e, &["seam.obj:", "v 1 has two texture coordinates", "seam"]);
+    assert_has(
+        &e,
+        &["seam.obj:", "v 1 has two texture coordinates", "seam"],
+    );
     let e = err(
         dir.path(),
         &format!("version = 1\n{CLOTH}rest = \"uv\"\n"),
