@@ -148,17 +148,22 @@ impl Parser {
         }
         let face_uvs: Option<Vec<u32>> = corners.iter().map(|c| c.1).collect();
         self.all_faces_have_uvs &= face_uvs.is_some();
-        let positions: Vec<DVec3> = corners
-            .iter()
-            .map(|c| self.positions[c.0 as usize])
-            .collect();
-        let triangles = weft_geom::polygon::triangulate(&positions).map_err(|e| {
-            format!(
-                "the face with {} corners cannot be triangulated: {}",
-                corners.len(),
-                e.describe(&|k| format!("v {}", corners[k].0 + 1))
-            )
-        })?;
+        let triangles = match corners.len() {
+            // Most faces: no polygon to triangulate.
+            3 => vec![[0, 1, 2]],
+            n => {
+                let positions: Vec<DVec3> = corners
+                    .iter()
+                    .map(|c| self.positions[c.0 as usize])
+                    .collect();
+                weft_geom::polygon::triangulate(&positions).map_err(|e| {
+                    format!(
+                        "the face with {n} corners cannot be triangulated: {}",
+                        e.describe(&|k| format!("v {}", corners[k].0 + 1))
+                    )
+                })?
+            }
+        };
         for [a, b, c] in triangles {
             self.triangles
                 .push([corners[a].0, corners[b].0, corners[c].0]);

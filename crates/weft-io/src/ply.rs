@@ -594,6 +594,12 @@ impl Faces {
                     ),
                 ));
             }
+            if let &[a, b, c] = ids {
+                // Most faces: no polygon to triangulate.
+                triangles.push([a, b, c]);
+                face_of_triangle.push(face);
+                continue;
+            }
             let corners: Vec<DVec3> = ids.iter().map(|&v| positions[v as usize]).collect();
             let local = weft_geom::polygon::triangulate(&corners).map_err(|e| {
                 (
