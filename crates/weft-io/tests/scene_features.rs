@@ -964,7 +964,11 @@ fn a_pin_box_that_selects_nothing_names_the_pin_and_the_object() {
     );
     assert_has(
         &e,
-        &["pin[0] 'edge'.box_min", "relative = true", "cloth 'sheet'"],
+        &[
+            "pin[0] 'edge'.box_min: the box from [2.19",
+            "(relative = true: [2.0, 0.0, 0.0] to [3.0, 1.0, 1.0] of the bounding box)",
+            "cloth 'sheet'",
+        ],
     );
     let e = err(
         dir.path(),

@@ -13,7 +13,7 @@ use glam::DVec3;
 use serde::Deserialize;
 use thiserror::Error;
 use weft_core::mesh::bounding_box;
-use weft_core::TriMesh;
+use weft_core::{ElementNames, TriMesh};
 use weft_sim::config::{ContactConfig, LimitsConfig, TimeConfig};
 use weft_sim::kinematics::{Keyframes, Motion};
 use weft_sim::materials::Material;
@@ -370,7 +370,7 @@ fn refuse_unwelded(
         .take(LISTED_PLACES)
         .map(|g| {
             g.iter()
-                .map(|&v| weft_core::ElementNames::vertex(&names, v))
+                .map(|&v| names.vertex(v))
                 .collect::<Vec<_>>()
                 .join(" = ")
         })
@@ -793,6 +793,7 @@ fn pin_box(
     let (min, max) = bounding_box(positions);
     // min·(1 - t) + max·t is exactly min at t = 0 and max at t = 1.
     let at = |t: DVec3| min * (DVec3::ONE - t) + max * t;
+    let given = (lo.to_array(), hi.to_array());
     let (lo, hi) = if relative { (at(lo), at(hi)) } else { (lo, hi) };
     let inside: Vec<u32> = (0..positions.len() as u32)
         .filter(|&i| {
@@ -810,9 +811,12 @@ fn pin_box(
                 lo.to_array(),
                 hi.to_array(),
                 if relative {
-                    " (relative = true: fractions of the bounding box)"
+                    format!(
+                        " (relative = true: {:?} to {:?} of the bounding box)",
+                        given.0, given.1
+                    )
                 } else {
-                    ""
+                    String::new()
                 },
                 object.name,
                 min.to_array(),
