@@ -31,7 +31,7 @@ pub enum Command {
     CcdBench(commands::ccd_bench::CcdBenchArgs),
     /// Report intersecting triangles in frame files.
     Check(commands::check::CheckArgs),
-    /// Scene statistics: sizes, masses, initial strain, steps, memory.
+    /// Scene statistics, start-up warnings, and whether `weft run` would start (exit 1 if not).
     Info(commands::info::InfoArgs),
     /// Render a run folder to PNG frames and an MP4 or GIF preview.
     Render(commands::render::RenderArgs),

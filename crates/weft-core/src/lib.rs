@@ -7,19 +7,23 @@
 //!   input ids, so results never depend on how the mesh is split or renumbered.
 //! * [`TriMesh`] is a plain indexed triangle mesh; [`topology::Topology`] derives
 //!   edges, hinges, adjacency and boundary from it; [`validate`](fn@validate) checks a mesh and
-//!   names the offending element in every error.
+//!   names the offending element in every error; [`coincident`] finds
+//!   vertices at exactly the same position (an unwelded mesh).
 //! * [`StencilKey`] is the global, partition-independent key of a contact stencil.
 
+pub mod coincident;
 pub mod mesh;
+pub mod names;
 pub mod stencil;
 pub mod topology;
 pub mod validate;
 
 pub use glam::DVec3;
 pub use mesh::TriMesh;
+pub use names::{ElementNames, MeshIds};
 pub use stencil::{StencilKey, StencilKind};
 pub use topology::{Hinge, Topology};
-pub use validate::{validate, MeshError, MeshWarning};
+pub use validate::{validate, MeshError, MeshWarning, MAX_COORDINATE};
 
 /// The one floating-point type of weft.
 pub type Real = f64;

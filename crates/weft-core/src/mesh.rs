@@ -49,3 +49,13 @@ impl TriMesh {
         ]
     }
 }
+
+/// The smallest and largest coordinates of `points`, per axis (infinite,
+/// inverted bounds for no points).
+pub fn bounding_box(points: &[DVec3]) -> (DVec3, DVec3) {
+    points
+        .iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &p| {
+            (lo.min(p), hi.max(p))
+        })
+}

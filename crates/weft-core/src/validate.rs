@@ -4,25 +4,42 @@
 //! error, so a message always describes the most basic problem:
 //!
 //! 1. the mesh has at least one triangle ([`MeshError::Empty`]);
-//! 2. every coordinate is finite ([`MeshError::NonFiniteCoordinate`]);
+//! 2. every coordinate is finite ([`MeshError::NonFiniteCoordinate`]) and at
+//!    most [`MAX_COORDINATE`] in magnitude ([`MeshError::CoordinateTooLarge`]);
 //! 3. every index is in range ([`MeshError::IndexOutOfRange`]);
 //! 4. no triangle repeats a vertex ([`MeshError::RepeatedVertex`]);
-//! 5. no triangle has (near-)zero area ([`MeshError::DegenerateTriangle`]);
+//! 5. no triangle has (near-)zero area: collinear corners
+//!    ([`MeshError::DegenerateTriangle`]), or an area too small to resolve next
+//!    to the mesh's extent ([`MeshError::TooSmallForExtent`], usually a stray
+//!    vertex far away or wrong units);
 //! 6. no two triangles use the same three vertices ([`MeshError::DuplicateTriangle`]);
 //! 7. every edge has at most two triangles ([`MeshError::NonManifoldEdge`]).
 //!
 //! A mesh that passes may still produce [`MeshWarning`]s (unreferenced vertices,
-//! inconsistently oriented faces). All indices in messages are 0-based positions
-//! in the mesh, and every message says so.
+//! inconsistently oriented faces). `Display` names elements by their 0-based
+//! positions in the mesh and says so; [`MeshError::describe`] and
+//! [`MeshWarning::describe`] name them as the source file does (see
+//! [`crate::names`]).
 
-use crate::mesh::TriMesh;
+use std::fmt;
+
+use glam::DVec3;
+
+use crate::mesh::{bounding_box, TriMesh};
+use crate::names::{ElementNames, MeshIds};
 use crate::topology::Topology;
-use thiserror::Error;
 
 /// Relative area tolerance: a triangle is degenerate when its area is at most
 /// `DEGENERATE_AREA_REL * diag²`, where `diag` is the mesh's bounding-box
-/// diagonal (so the test is independent of the mesh's units).
+/// diagonal (so the test is independent of the mesh's units). Coordinates are
+/// rounded relative to the mesh's extent, so a smaller area is rounding noise.
 pub const DEGENERATE_AREA_REL: f64 = 1e-14;
+
+/// The largest coordinate magnitude (m) weft simulates, `2^500`: the range
+/// over which the narrow phase's rounding-error analysis holds
+/// (`weft_geom::ccd::COORD_LIMIT`), and far below where squared distances
+/// overflow.
+pub const MAX_COORDINATE: f64 = 3.273_390_607_896_142e150;
 
 /// How many vertex ids [`MeshWarning::UnreferencedVertices`] lists.
 const LISTED_IDS: usize = 5;
@@ -32,39 +49,58 @@ const LISTED_IDS: usize = 5;
 /// When this error occurs: [`validate`] or [`Topology::build`] was given a mesh
 /// that breaks one of the invariants the simulator relies on. How to handle it:
 /// fix the named element in the source file (or the code that generated it).
-#[derive(Clone, Debug, Error, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 #[non_exhaustive]
 pub enum MeshError {
-    #[error("the mesh has no triangles")]
     Empty,
-    #[error("vertex {vertex} (0-based) has a non-finite {axis} coordinate ({value})")]
     NonFiniteCoordinate {
         vertex: usize,
         axis: char,
         value: f64,
     },
-    #[error("triangle {triangle} (0-based) refers to vertex {index}, but the mesh has only {num_vertices} vertices (valid indices 0..={})", num_vertices.saturating_sub(1))]
+    /// A coordinate beyond [`MAX_COORDINATE`].
+    CoordinateTooLarge {
+        vertex: usize,
+        axis: char,
+        value: f64,
+    },
     IndexOutOfRange {
         triangle: usize,
         index: u32,
         num_vertices: usize,
     },
-    #[error("triangle {triangle} (vertices {}, {}, {}; 0-based) repeats a vertex", vertices[0], vertices[1], vertices[2])]
-    RepeatedVertex { triangle: usize, vertices: [u32; 3] },
-    #[error("triangle {triangle} (vertices {}, {}, {}; 0-based) has zero area (area {area:e}, tolerance {tolerance:e})", vertices[0], vertices[1], vertices[2])]
+    RepeatedVertex {
+        triangle: usize,
+        vertices: [u32; 3],
+    },
+    /// Collinear (or coincident) corners: `area` is at most `tolerance`,
+    /// [`DEGENERATE_AREA_REL`] times the square of the triangle's own longest
+    /// edge `longest_edge`.
     DegenerateTriangle {
         triangle: usize,
         vertices: [u32; 3],
         area: f64,
         tolerance: f64,
+        longest_edge: f64,
     },
-    #[error("triangle {triangle} (vertices {}, {}, {}; 0-based) duplicates triangle {first} (same three vertices)", vertices[0], vertices[1], vertices[2])]
+    /// A triangle of a sound shape whose `area` is at most
+    /// [`DEGENERATE_AREA_REL`] times the square of the mesh's extent `extent`
+    /// (its bounding-box diagonal): lost in the rounding of coordinates that
+    /// large. `far_vertex` (at `far_position`) is the vertex farthest from the
+    /// triangle: the usual culprit is a stray vertex.
+    TooSmallForExtent {
+        triangle: usize,
+        vertices: [u32; 3],
+        far_vertex: u32,
+        area: f64,
+        extent: f64,
+        far_position: DVec3,
+    },
     DuplicateTriangle {
         triangle: usize,
         first: usize,
         vertices: [u32; 3],
     },
-    #[error("edge ({}, {}) is shared by {} triangles {triangles:?} (0-based; non-manifold: at most two allowed)", edge[0], edge[1], triangles.len())]
     NonManifoldEdge {
         edge: [u32; 2],
         triangles: Vec<usize>,
@@ -80,28 +116,124 @@ impl MeshError {
             Self::IndexOutOfRange { triangle, .. }
             | Self::RepeatedVertex { triangle, .. }
             | Self::DegenerateTriangle { triangle, .. }
+            | Self::TooSmallForExtent { triangle, .. }
             | Self::DuplicateTriangle { triangle, .. } => Some(*triangle),
             Self::NonManifoldEdge { triangles, .. } => triangles.last().copied(),
-            Self::Empty | Self::NonFiniteCoordinate { .. } => None,
+            Self::Empty | Self::NonFiniteCoordinate { .. } | Self::CoordinateTooLarge { .. } => {
+                None
+            }
+        }
+    }
+
+    /// The message, naming elements with `names`.
+    pub fn describe(&self, names: &dyn ElementNames) -> String {
+        match self {
+            Self::Empty => "the mesh has no triangles".into(),
+            Self::NonFiniteCoordinate {
+                vertex,
+                axis,
+                value,
+            } => format!(
+                "{} has a non-finite {axis} coordinate ({value})",
+                names.vertex(*vertex as u32)
+            ),
+            Self::CoordinateTooLarge {
+                vertex,
+                axis,
+                value,
+            } => format!(
+                "{} has {axis} = {value:e} m, beyond the largest magnitude weft can simulate \
+                 ({MAX_COORDINATE:.3e} m); the coordinates are in the wrong units or corrupt: \
+                 rescale the mesh file (a scene's transform.scale applies only after this check)",
+                names.vertex(*vertex as u32)
+            ),
+            Self::IndexOutOfRange {
+                triangle,
+                index,
+                num_vertices,
+            } => format!(
+                "{} refers to vertex {index}, but the mesh has only {num_vertices} vertices \
+                 (valid indices 0..={}, 0-based)",
+                names.triangle(*triangle),
+                num_vertices.saturating_sub(1)
+            ),
+            Self::RepeatedVertex { triangle, vertices } => format!(
+                "{} ({}) repeats a vertex",
+                names.triangle(*triangle),
+                names.vertices(vertices)
+            ),
+            Self::DegenerateTriangle {
+                triangle,
+                vertices,
+                area,
+                longest_edge,
+                ..
+            } => format!(
+                "{} ({}) has zero area: its corners are collinear (area {area:.3e} m² for a \
+                 longest edge of {longest_edge:.3e} m)",
+                names.triangle(*triangle),
+                names.vertices(vertices)
+            ),
+            Self::TooSmallForExtent {
+                triangle,
+                vertices,
+                far_vertex,
+                area,
+                extent,
+                far_position,
+            } => format!(
+                "{} ({}) has an area of {area:.3e} m², too small to resolve in a mesh \
+                 {extent:.3e} m across (below {:.3e} m², areas are lost in the rounding of its \
+                 coordinates; this triangle needs the mesh to span at most {:.3e} m). The \
+                 farthest vertex from it is {} at ({:e}, {:e}, {:e}): delete it if it is a stray \
+                 vertex; if the mesh is really that large, its units are wrong (weft uses metres)",
+                names.triangle(*triangle),
+                names.vertices(vertices),
+                DEGENERATE_AREA_REL * extent * extent,
+                (area / DEGENERATE_AREA_REL).sqrt(),
+                names.vertex(*far_vertex),
+                far_position.x,
+                far_position.y,
+                far_position.z,
+            ),
+            Self::DuplicateTriangle {
+                triangle,
+                first,
+                vertices,
+            } => format!(
+                "{} ({}) duplicates {} (same three vertices)",
+                names.triangle(*triangle),
+                names.vertices(vertices),
+                names.triangle(*first)
+            ),
+            Self::NonManifoldEdge { edge, triangles } => format!(
+                "the edge ({}) is shared by {} {} (non-manifold: at most two allowed)",
+                names.vertices(edge),
+                triangles.len(),
+                names.triangles(triangles)
+            ),
         }
     }
 }
 
+impl fmt::Display for MeshError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.describe(&MeshIds))
+    }
+}
+
+impl std::error::Error for MeshError {}
+
 /// A mesh that can be simulated but is probably not what the user meant.
 /// Indices are 0-based positions in the mesh.
-#[derive(Clone, Debug, Error, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 #[non_exhaustive]
 pub enum MeshWarning {
     /// Vertices no triangle uses: they are simulated as free particles.
-    #[error(
-        "{count} vertices are used by no triangle (first 0-based ids: {})",
-        join(first)
-    )]
     UnreferencedVertices { count: usize, first: Vec<u32> },
     /// Interior edges traversed in the same direction by both of their
     /// triangles: normals flip across them, so bending rest angles and
     /// one-sided contact see a fold. Reports the first such edge.
-    #[error("{count} interior edges are inconsistently oriented; first: edge ({}, {}) is traversed {} -> {} by both triangles {} and {} (0-based)", edge[0], edge[1], edge[0], edge[1], triangles[0], triangles[1])]
     InconsistentOrientation {
         count: usize,
         edge: [u32; 2],
@@ -109,11 +241,35 @@ pub enum MeshWarning {
     },
 }
 
-fn join(ids: &[u32]) -> String {
-    ids.iter()
-        .map(|i| i.to_string())
-        .collect::<Vec<_>>()
-        .join(", ")
+impl MeshWarning {
+    /// The message, naming elements with `names`.
+    pub fn describe(&self, names: &dyn ElementNames) -> String {
+        match self {
+            Self::UnreferencedVertices { count, first } => format!(
+                "{count} vertices are used by no triangle (first: {})",
+                names.vertices(first)
+            ),
+            Self::InconsistentOrientation {
+                count,
+                edge,
+                triangles,
+            } => format!(
+                "{count} interior edges are inconsistently oriented; first: the edge from {} to \
+                 {} is traversed in that direction by both {} and {} (flip one so that the \
+                 normals agree)",
+                names.vertex(edge[0]),
+                names.vertex(edge[1]),
+                names.triangle(triangles[0]),
+                names.triangle(triangles[1])
+            ),
+        }
+    }
+}
+
+impl fmt::Display for MeshWarning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.describe(&MeshIds))
+    }
 }
 
 /// Validates `mesh`; returns warnings, or the first error found (see the
@@ -127,6 +283,17 @@ pub fn validate(mesh: &TriMesh) -> Result<Vec<MeshWarning>, MeshError> {
         for (axis, value) in ['x', 'y', 'z'].into_iter().zip(p.to_array()) {
             if !value.is_finite() {
                 return Err(MeshError::NonFiniteCoordinate {
+                    vertex: v,
+                    axis,
+                    value,
+                });
+            }
+        }
+    }
+    for (v, p) in mesh.positions.iter().enumerate() {
+        for (axis, value) in ['x', 'y', 'z'].into_iter().zip(p.to_array()) {
+            if value.abs() > MAX_COORDINATE {
+                return Err(MeshError::CoordinateTooLarge {
                     vertex: v,
                     axis,
                     value,
@@ -186,22 +353,48 @@ pub fn validate(mesh: &TriMesh) -> Result<Vec<MeshWarning>, MeshError> {
 }
 
 fn check_areas(mesh: &TriMesh) -> Result<(), MeshError> {
-    let (lo, hi) = mesh.positions.iter().fold(
-        (glam::DVec3::INFINITY, glam::DVec3::NEG_INFINITY),
-        |(lo, hi), &p| (lo.min(p), hi.max(p)),
-    );
-    let tolerance = DEGENERATE_AREA_REL * (hi - lo).length_squared();
+    let (lo, hi) = bounding_box(&mesh.positions);
+    let extent = (hi - lo).length();
+    let tolerance = DEGENERATE_AREA_REL * extent * extent;
     for f in 0..mesh.num_triangles() {
         let [a, b, c] = mesh.corners(f);
         let area = 0.5 * (b - a).cross(c - a).length();
-        if area <= tolerance {
+        if area > tolerance {
+            continue;
+        }
+        // Which of the two reasons: the triangle's own shape, or its size
+        // next to the rest of the mesh.
+        let longest_edge = (b - a).length().max((c - b).length()).max((a - c).length());
+        let own_tolerance = DEGENERATE_AREA_REL * longest_edge * longest_edge;
+        let vertices = mesh.triangles[f];
+        if area <= own_tolerance {
             return Err(MeshError::DegenerateTriangle {
                 triangle: f,
-                vertices: mesh.triangles[f],
+                vertices,
                 area,
-                tolerance,
+                tolerance: own_tolerance,
+                longest_edge,
             });
         }
+        // The vertex farthest from the triangle (the first of equals).
+        let far_vertex = mesh
+            .positions
+            .iter()
+            .map(|&p| (p - a).length())
+            .enumerate()
+            .fold(
+                (0, 0.0),
+                |best, (v, d)| if d > best.1 { (v, d) } else { best },
+            )
+            .0;
+        return Err(MeshError::TooSmallForExtent {
+            triangle: f,
+            vertices,
+            far_vertex: far_vertex as u32,
+            area,
+            extent,
+            far_position: mesh.positions[far_vertex],
+        });
     }
     Ok(())
 }

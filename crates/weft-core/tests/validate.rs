@@ -1,5 +1,5 @@
 //! `validate`: one test per error and warning class, each checking that the
-//! message names the element with 0-based indices.
+//! message names the element with 0-based indices (the `Display` numbering).
 
 use weft_core::{validate, DVec3, MeshError, MeshWarning, TriMesh};
 
@@ -109,7 +109,8 @@ fn degenerate_triangle_names_vertices_and_area() {
     ));
     let msg = message(&err);
     assert!(
-        msg.contains("triangle 2 (vertices 0, 1, 4") && msg.contains("zero area (area 0"),
+        msg.contains("triangle 2 (vertices 0, 1, 4")
+            && msg.contains("zero area: its corners are collinear"),
         "{msg}"
     );
 }
@@ -132,6 +133,67 @@ fn degenerate_tolerance_is_relative_to_bounding_box() {
         validate(&mesh),
         Err(MeshError::DegenerateTriangle { triangle: 2, .. })
     ));
+}
+
+/// What used to happen: one vertex at 1e30 made every ordinary triangle "have
+/// zero area (area 1.07e-4, tolerance 1e46)". The message now says the triangle
+/// is too small for the mesh's extent and names the far vertex.
+#[test]
+fn a_stray_far_vertex_is_named_instead_of_a_zero_area() {
+    let mut mesh = square();
+    mesh.positions.push(DVec3::new(1e30, 0.0, 0.0));
+    mesh.positions.push(DVec3::new(1e30, 1.0, 0.0));
+    mesh.positions.push(DVec3::new(1e30, 0.0, 1.0));
+    mesh.triangles.push([4, 5, 6]);
+    let err = validate(&mesh).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            MeshError::TooSmallForExtent {
+                triangle: 0,
+                far_vertex: 4,
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+    let msg = message(&err);
+    assert!(!msg.contains("zero area"), "{msg}");
+    assert!(
+        msg.contains("too small to resolve in a mesh 1.000e30 m across")
+            && msg.contains("vertex 4 (0-based) at (1e30, 0e0, 0e0)")
+            && msg.contains("stray vertex")
+            && msg.contains("at most 7.071e6 m"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn coordinates_beyond_the_simulated_range_are_named() {
+    assert_eq!(weft_core::MAX_COORDINATE, 2f64.powi(500));
+    let mut mesh = square();
+    mesh.positions[3].z = -1e200;
+    let err = validate(&mesh).unwrap_err();
+    assert_eq!(
+        err,
+        MeshError::CoordinateTooLarge {
+            vertex: 3,
+            axis: 'z',
+            value: -1e200
+        }
+    );
+    let msg = message(&err);
+    assert!(
+        msg.contains("vertex 3 (0-based) has z = -1e200 m, beyond the largest magnitude")
+            && msg.contains("3.273e150 m"),
+        "{msg}"
+    );
+    // At the limit, the mesh is accepted (a uniformly huge mesh is not wrong).
+    for p in &mut mesh.positions {
+        *p = *p / 1e200 * weft_core::MAX_COORDINATE;
+    }
+    mesh.positions[3].z = 0.0;
+    assert_eq!(validate(&mesh), Ok(vec![]));
 }
 
 #[test]
@@ -168,7 +230,11 @@ fn non_manifold_edge() {
         }
     );
     assert_eq!(err.triangle(), Some(2));
-    assert!(message(&err).contains("edge (0, 2)"));
+    let msg = message(&err);
+    assert!(
+        msg.contains("edge (vertices 0, 2; 0-based) is shared by 3 triangles 0, 1, 2"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -226,7 +292,23 @@ fn inconsistent_orientation_warning() {
     );
     let msg = warnings[0].to_string();
     assert!(
-        msg.contains("edge (2, 0)") && msg.contains("triangles 0 and 1") && msg.contains("0-based"),
+        msg.contains("from vertex 2 (0-based) to vertex 0 (0-based)")
+            && msg.contains("both triangle 0 and triangle 1"),
         "{msg}"
     );
+}
+
+#[test]
+fn coincident_vertices_are_grouped_exactly() {
+    use weft_core::coincident::coincident_vertices;
+    let p = [
+        DVec3::new(1.0, 2.0, 3.0),
+        DVec3::new(0.0, 0.0, 0.0),
+        DVec3::new(1.0, 2.0, 3.0),
+        DVec3::new(-0.0, 0.0, -0.0), // the same position as vertex 1
+        DVec3::new(1.0, 2.0, 3.0 + 1e-15),
+        DVec3::new(1.0, 2.0, 3.0),
+    ];
+    assert_eq!(coincident_vertices(&p), vec![vec![0, 2, 5], vec![1, 3]]);
+    assert!(coincident_vertices(&square().positions).is_empty());
 }

@@ -2,7 +2,8 @@
 //!
 //! Distances with gradients, 26-DOPs and their BVH, the conservative continuous
 //! proximity predicate used by the narrow phase (and by `weft ccd-bench`),
-//! exact triangle–triangle intersection, and the CCD benchmark reader.
+//! exact triangle–triangle intersection, polygon triangulation for the mesh
+//! readers, and the CCD benchmark reader.
 
 pub mod bvh;
 pub mod ccd;
@@ -10,6 +11,7 @@ pub mod distance;
 pub mod dop;
 pub mod intersections;
 pub mod knots;
+pub mod polygon;
 pub mod ribbon;
 pub mod shapes;
 pub mod strain;

@@ -73,7 +73,7 @@ fn proj(p: DVec3, k: usize) -> [f64; 2] {
 }
 
 #[inline]
-fn o2(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> i8 {
+pub(crate) fn o2(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> i8 {
     sign(orient2d(a, b, c))
 }
 
@@ -102,7 +102,7 @@ fn on_segment_2d(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> bool {
 
 /// Closed 2D segments `[p, q]` and `[r, s]` intersect (exact; degenerate
 /// segments allowed).
-fn segments_2d(p: [f64; 2], q: [f64; 2], r: [f64; 2], s: [f64; 2]) -> bool {
+pub(crate) fn segments_2d(p: [f64; 2], q: [f64; 2], r: [f64; 2], s: [f64; 2]) -> bool {
     let d1 = o2(p, q, r);
     let d2 = o2(p, q, s);
     let d3 = o2(r, s, p);
@@ -117,7 +117,7 @@ fn segments_2d(p: [f64; 2], q: [f64; 2], r: [f64; 2], s: [f64; 2]) -> bool {
 }
 
 /// Point in closed 2D triangle (non-degenerate in this projection).
-fn point_in_triangle_2d(p: [f64; 2], t: [[f64; 2]; 3]) -> bool {
+pub(crate) fn point_in_triangle_2d(p: [f64; 2], t: [[f64; 2]; 3]) -> bool {
     no_mixed([o2(t[0], t[1], p), o2(t[1], t[2], p), o2(t[2], t[0], p)])
 }
 

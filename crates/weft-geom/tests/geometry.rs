@@ -1509,3 +1509,286 @@ mod tri_tri {
         assert!(mesh_self_intersections(&x, &tris).is_empty());
     }
 }
+
+/// Polygon triangulation (`weft_geom::polygon`) against a brute-force check in
+/// exact integer arithmetic: the triangles cover the polygon — their areas sum
+/// to its area, none is inverted or of zero area, each lies inside the polygon
+/// and no two overlap.
+mod polygon {
+    use super::{rnd, v};
+    use rand::Rng;
+    use weft_core::DVec3;
+    use weft_geom::polygon::{triangulate, PolygonError};
+
+    type P = [i64; 2];
+
+    fn orient(a: P, b: P, c: P) -> i128 {
+        let (a, b, c) = (a.map(i128::from), b.map(i128::from), c.map(i128::from));
+        (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+    }
+
+    /// Twice the signed area of a polygon (counter-clockwise positive).
+    fn twice_area(poly: &[P]) -> i128 {
+        (0..poly.len())
+            .map(|i| {
+                let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
+                i128::from(a[0]) * i128::from(b[1]) - i128::from(b[0]) * i128::from(a[1])
+            })
+            .sum()
+    }
+
+    /// The open segments `ab` and `cd` cross at a point inside both.
+    fn cross_properly(a: P, b: P, c: P, d: P) -> bool {
+        let s = |x: i128| x.signum();
+        s(orient(a, b, c)) * s(orient(a, b, d)) < 0 && s(orient(c, d, a)) * s(orient(c, d, b)) < 0
+    }
+
+    /// `q` (coordinates times 3, for centroids) strictly inside `poly` (times 1),
+    /// by the crossing number; `q` is never on the boundary here.
+    fn inside3(poly: &[P], q: P) -> bool {
+        let mut inside = false;
+        for i in 0..poly.len() {
+            let (a, b) = (
+                poly[i].map(|x| 3 * x),
+                poly[(i + 1) % poly.len()].map(|x| 3 * x),
+            );
+            if (a[1] > q[1]) != (b[1] > q[1]) {
+                let o = orient(a, b, q);
+                if (o > 0) == (b[1] > a[1]) {
+                    inside = !inside;
+                }
+            }
+        }
+        inside
+    }
+
+    fn centroid3(t: [P; 3]) -> P {
+        [t[0][0] + t[1][0] + t[2][0], t[0][1] + t[1][1] + t[2][1]]
+    }
+
+    /// Embeds integer 2D points exactly in a tilted plane of 3D space.
+    fn embed(poly: &[P], origin: [i64; 3], u: [i64; 3], w: [i64; 3]) -> Vec<DVec3> {
+        poly.iter()
+            .map(|p| {
+                let c = |k: usize| (origin[k] + p[0] * u[k] + p[1] * w[k]) as f64;
+                v(c(0), c(1), c(2))
+            })
+            .collect()
+    }
+
+    fn assert_covers(poly: &[P], corners: &[DVec3], tris: &[[usize; 3]]) {
+        let n = poly.len();
+        assert_eq!(tris.len(), n - 2, "{poly:?}");
+        let newell: DVec3 = (0..n).map(|i| corners[i].cross(corners[(i + 1) % n])).sum();
+        let t2: Vec<[P; 3]> = tris.iter().map(|t| t.map(|i| poly[i])).collect();
+        for (k, t) in tris.iter().enumerate() {
+            assert!(t.iter().all(|&i| i < n) && t[0] != t[1] && t[1] != t[2] && t[0] != t[2]);
+            assert!(
+                orient(t2[k][0], t2[k][1], t2[k][2]) > 0,
+                "triangle {t:?} is inverted or flat in {poly:?}"
+            );
+            let [a, b, c] = t.map(|i| corners[i]);
+            assert!(
+                (b - a).cross(c - a).dot(newell) > 0.0,
+                "3D normal of {t:?} is inverted"
+            );
+            assert!(
+                inside3(poly, centroid3(t2[k])),
+                "triangle {t:?} is outside {poly:?}"
+            );
+            for e in 0..3 {
+                let (p, q) = (t2[k][e], t2[k][(e + 1) % 3]);
+                for i in 0..n {
+                    assert!(
+                        !cross_properly(p, q, poly[i], poly[(i + 1) % n]),
+                        "an edge of {t:?} crosses the boundary of {poly:?}"
+                    );
+                }
+            }
+        }
+        let sum: i128 = t2.iter().map(|t| orient(t[0], t[1], t[2])).sum();
+        assert_eq!(sum, twice_area(poly), "the triangles' areas do not add up");
+        // No two overlap: no proper edge crossing, neither holds the other's centroid.
+        for i in 0..t2.len() {
+            for j in i + 1..t2.len() {
+                let in_tri = |t: [P; 3], q: P| {
+                    let t = t.map(|p| p.map(|x| 3 * x));
+                    (0..3).all(|e| orient(t[e], t[(e + 1) % 3], q) > 0)
+                };
+                assert!(!in_tri(t2[i], centroid3(t2[j])) && !in_tri(t2[j], centroid3(t2[i])));
+                for e in 0..3 {
+                    for f in 0..3 {
+                        assert!(!cross_properly(
+                            t2[i][e],
+                            t2[i][(e + 1) % 3],
+                            t2[j][f],
+                            t2[j][(f + 1) % 3]
+                        ));
+                    }
+                }
+            }
+        }
+    }
+
+    fn triangulate_2d(poly: &[P]) -> Result<(Vec<DVec3>, Vec<[usize; 3]>), PolygonError> {
+        let corners = embed(poly, [7, -3, 11], [2, 1, -1], [-1, 3, 2]);
+        triangulate(&corners).map(|t| (corners, t))
+    }
+
+    /// Star-shaped polygons with very uneven radii (deeply non-convex), with
+    /// extra corners on some edges (zero turn), embedded in tilted planes.
+    #[test]
+    fn random_star_polygons_with_straight_corners_are_covered_exactly() {
+        let mut rng = rnd::rng(41);
+        let mut checked = 0;
+        for case in 0..400 {
+            let n = rng.gen_range(4..24);
+            // Distinct sectors keep the polygon star-shaped about the origin
+            // after rounding to even integers.
+            let mut poly: Vec<P> = (0..n)
+                .map(|k| {
+                    let angle =
+                        (k as f64 + rng.gen_range(0.1..0.9)) * std::f64::consts::TAU / n as f64;
+                    let r = rng.gen_range(50.0..1000.0);
+                    [
+                        2 * (r * angle.cos() / 2.0).round() as i64,
+                        2 * (r * angle.sin() / 2.0).round() as i64,
+                    ]
+                })
+                .collect();
+            poly.dedup();
+            if twice_area(&poly) <= 0
+                || (0..poly.len()).any(|i| orient([0, 0], poly[i], poly[(i + 1) % poly.len()]) <= 0)
+            {
+                continue; // rounding broke star-shapedness: not a valid case
+            }
+            // Midpoints (exact: even coordinates) on every third edge.
+            let mut with_mid = Vec::new();
+            for i in 0..poly.len() {
+                with_mid.push(poly[i]);
+                if (i + case) % 3 == 0 {
+                    let b = poly[(i + 1) % poly.len()];
+                    with_mid.push([(poly[i][0] + b[0]) / 2, (poly[i][1] + b[1]) / 2]);
+                }
+            }
+            let (corners, tris) =
+                triangulate_2d(&with_mid).unwrap_or_else(|e| panic!("{with_mid:?}: {e:?}"));
+            assert_covers(&with_mid, &corners, &tris);
+            checked += 1;
+        }
+        assert!(checked > 300, "only {checked} valid random polygons");
+    }
+
+    /// Shapes a fan from the first corner gets wrong: a comb (its first corner
+    /// sees only part of it) and a square with several corners on each side.
+    #[test]
+    fn comb_and_subdivided_square() {
+        let mut comb: Vec<P> = vec![[0, 0], [90, 0]];
+        for k in (0..4).rev() {
+            let x = 20 * k + 10;
+            comb.extend([[x + 10, 60], [x + 5, 60], [x + 5, 10], [x, 10], [x, 60]]);
+        }
+        comb.extend([[0, 60]]);
+        comb.dedup();
+        let (c, t) = triangulate_2d(&comb).unwrap();
+        assert_covers(&comb, &c, &t);
+        let square: Vec<P> = vec![
+            [0, 0],
+            [2, 0],
+            [4, 0],
+            [6, 0],
+            [6, 2],
+            [6, 4],
+            [6, 6],
+            [4, 6],
+            [2, 6],
+            [0, 6],
+            [0, 4],
+            [0, 2],
+        ];
+        let (c, t) = triangulate_2d(&square).unwrap();
+        assert_covers(&square, &c, &t);
+        // An arrow whose first corner is reflex: the fan from it crosses outside.
+        let arrow: Vec<P> = vec![[0, 0], [-4, -4], [8, 0], [-4, 4]];
+        let (c, t) = triangulate_2d(&arrow).unwrap();
+        assert_covers(&arrow, &c, &t);
+    }
+
+    #[test]
+    fn a_warped_quad_keeps_its_orientation() {
+        let q = [
+            v(0.0, 0.0, 0.0),
+            v(1.0, 0.0, 0.1),
+            v(1.0, 1.0, 0.0),
+            v(0.0, 1.0, 0.1),
+        ];
+        let t = triangulate(&q).unwrap();
+        assert_eq!(t.len(), 2);
+        for tri in t {
+            let [a, b, c] = tri.map(|i| q[i]);
+            assert!((b - a).cross(c - a).z > 0.0);
+        }
+    }
+
+    #[test]
+    fn polygons_that_cannot_be_triangulated_are_refused_with_the_reason() {
+        let e = |poly: &[P]| triangulate_2d(poly).map(|_| ()).unwrap_err();
+        // A lopsided bow tie: edges 0–1 and 2–3 cross.
+        assert_eq!(
+            e(&[[0, 0], [4, 4], [4, 0], [0, 6]]),
+            PolygonError::SelfIntersecting {
+                edges: [[0, 1], [2, 3]]
+            }
+        );
+        // A corner touching a non-adjacent edge.
+        assert!(matches!(
+            e(&[[0, 0], [6, 0], [6, 6], [3, 0], [0, 6]]),
+            PolygonError::SelfIntersecting { .. }
+        ));
+        assert_eq!(e(&[[0, 0], [2, 0], [4, 0], [6, 0]]), PolygonError::ZeroArea);
+        // A symmetric bow tie: its two loops cancel.
+        assert_eq!(e(&[[0, 0], [4, 4], [4, 0], [0, 4]]), PolygonError::ZeroArea);
+        assert_eq!(
+            e(&[[0, 0], [4, 0], [4, 0], [4, 4], [0, 4]]),
+            PolygonError::CoincidentCorners { a: 1, b: 2 }
+        );
+        // A spike: the boundary goes out to (8, 2) and back along the same line.
+        assert_eq!(
+            e(&[[0, 0], [4, 0], [4, 2], [8, 2], [6, 2], [6, 4], [0, 4]]),
+            PolygonError::FoldsBack { corner: 3 }
+        );
+        let named = PolygonError::SelfIntersecting {
+            edges: [[0, 1], [2, 3]],
+        }
+        .describe(&|k| format!("v {}", k + 10));
+        assert!(named.contains("v 10–v 11 and v 12–v 13"), "{named}");
+    }
+
+    /// Large random polygons stay fast (the ear cache) and exact.
+    #[test]
+    fn a_thousand_corner_star() {
+        let mut rng = rnd::rng(7);
+        let n = 1000;
+        let poly: Vec<P> = (0..n)
+            .map(|k| {
+                let angle = (k as f64 + 0.5) * std::f64::consts::TAU / n as f64;
+                let r = rng.gen_range(4.0e5..1.0e6);
+                [
+                    (r * angle.cos()).round() as i64,
+                    (r * angle.sin()).round() as i64,
+                ]
+            })
+            .collect();
+        let (c, t) = triangulate_2d(&poly).unwrap();
+        assert_eq!(t.len(), n - 2);
+        let sum: i128 = t
+            .iter()
+            .map(|t| orient(poly[t[0]], poly[t[1]], poly[t[2]]))
+            .sum();
+        assert_eq!(sum, twice_area(&poly));
+        assert!(t.iter().all(|t| {
+            let [a, b, cc] = t.map(|i| c[i]);
+            (b - a).cross(cc - a).length() > 0.0
+        }));
+    }
+}

@@ -33,13 +33,16 @@ pub enum IoError {
     },
     /// The file parsed but its mesh failed
     /// [`weft_core::validate`](fn@weft_core::validate). `line` is the source
-    /// line of the offending triangle where the format has lines (OBJ).
-    #[error("{}{}: {source}", path.display(), Line(*line))]
+    /// line of the offending triangle where the format has lines (OBJ);
+    /// `message` names the elements the way the file numbers them.
+    #[error("{}{}: {message}", path.display(), Line(*line))]
     Mesh {
         path: PathBuf,
         line: Option<usize>,
+        /// Boxed: it is large, and every I/O result carries this type.
         #[source]
-        source: MeshError,
+        source: Box<MeshError>,
+        message: String,
     },
     /// The file's extension names no format weft reads.
     #[error("{}: unsupported mesh format {extension:?} (expected a .obj or .ply file)", path.display())]

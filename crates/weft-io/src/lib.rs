@@ -14,7 +14,9 @@
 //!   checksum), written atomically;
 //! * [`read_mesh`] — picks the reader from the extension and runs
 //!   [`weft_core::validate`](fn@weft_core::validate), mapping an OBJ triangle
-//!   back to its source line.
+//!   back to its source line;
+//! * [`names`] — messages about a file's elements in the file's own
+//!   numbering (OBJ `v` numbers and face lines, PLY element indices).
 //!
 //! Every error is an [`IoError`] whose `Display` names the file and the line
 //! (or, for binary PLY, the byte offset and element), e.g.
@@ -25,6 +27,7 @@
 pub mod atomic;
 pub mod checkpoint;
 pub mod error;
+pub mod names;
 pub mod obj;
 pub mod ply;
 pub mod scene;
@@ -32,6 +35,7 @@ pub mod vtk;
 
 pub use atomic::write_atomic;
 pub use error::IoError;
+pub use names::FileNames;
 pub use obj::{encode_obj, parse_obj, read_obj, write_obj, ObjData, ObjObject};
 pub use ply::{encode_ply, parse_ply, read_ply, write_ply, PlyData};
 
@@ -45,6 +49,8 @@ pub struct MeshFile {
     pub mesh: TriMesh,
     /// OBJ only: the 1-based source line of each triangle.
     pub face_lines: Option<Vec<usize>>,
+    /// PLY only: the face element (0-based) each triangle was cut from.
+    pub face_of_triangle: Option<Vec<usize>>,
     /// OBJ only, if the file has `vt` records.
     pub uvs: Option<Vec<[f64; 2]>>,
     /// OBJ only, if every face corner has a texture index.
@@ -62,6 +68,17 @@ impl MeshFile {
     /// The source line of triangle `f` (OBJ), for `file:line` messages.
     pub fn line_of_triangle(&self, f: usize) -> Option<usize> {
         self.face_lines.as_ref()?.get(f).copied()
+    }
+
+    /// How messages name this file's vertices and faces.
+    pub fn names(&self) -> FileNames<'_> {
+        match (&self.face_lines, &self.face_of_triangle) {
+            (Some(face_lines), _) => FileNames::Obj { face_lines },
+            (None, Some(face_of_triangle)) => FileNames::Ply { face_of_triangle },
+            (None, None) => FileNames::Ply {
+                face_of_triangle: &[],
+            },
+        }
     }
 }
 
@@ -89,7 +106,8 @@ fn format_of(path: &Path) -> Result<Format, IoError> {
 
 /// Reads a `.obj` or `.ply` file (extension case-insensitive) and validates
 /// the mesh. A validation error comes back as [`IoError::Mesh`] with the OBJ
-/// source line of the offending triangle where there is one.
+/// source line of the offending triangle where there is one, naming elements
+/// as the file numbers them ([`MeshFile::names`]).
 pub fn read_mesh(path: &Path) -> Result<MeshFile, IoError> {
     let file = match format_of(path)? {
         Format::Obj => {
@@ -97,6 +115,7 @@ pub fn read_mesh(path: &Path) -> Result<MeshFile, IoError> {
             MeshFile {
                 mesh: d.mesh,
                 face_lines: Some(d.face_lines),
+                face_of_triangle: None,
                 uvs: (!d.uvs.is_empty()).then_some(d.uvs),
                 face_uvs: d.face_uvs,
                 objects: d.objects,
@@ -109,6 +128,7 @@ pub fn read_mesh(path: &Path) -> Result<MeshFile, IoError> {
             MeshFile {
                 mesh: d.mesh,
                 face_lines: None,
+                face_of_triangle: Some(d.face_of_triangle),
                 uvs: None,
                 face_uvs: None,
                 objects: Vec::new(),
@@ -122,7 +142,8 @@ pub fn read_mesh(path: &Path) -> Result<MeshFile, IoError> {
         Err(source) => Err(IoError::Mesh {
             path: path.to_path_buf(),
             line: source.triangle().and_then(|f| file.line_of_triangle(f)),
-            source,
+            message: source.describe(&file.names()),
+            source: Box::new(source),
         }),
     }
 }

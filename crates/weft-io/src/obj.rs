@@ -4,7 +4,9 @@
 //! Read: `v` (extra components such as `w` or vertex colours ignored), `vt`,
 //! `vn` (checked, then discarded), `f` in every corner form (`a`, `a/b`,
 //! `a//c`, `a/b/c`) with positive or negative (relative) indices, polygons
-//! fan-triangulated, `o` / `g` as object boundaries. Everything else (`s`,
+//! triangulated by ear clipping in their plane ([`weft_geom::polygon`]; one the
+//! clipping cannot triangulate, such as a self-intersecting one, is refused),
+//! `o` / `g` as object boundaries. A UTF-8 byte-order mark is skipped. Everything else (`s`,
 //! `usemtl`, `mtllib`, `l`, curves, unknown records) is ignored: none of it
 //! affects a simulated cloth. `#` starts a comment anywhere on a line.
 //!
@@ -34,7 +36,7 @@ pub struct ObjObject {
 /// The contents of an OBJ file.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ObjData {
-    /// Positions in file order, triangles after fan triangulation.
+    /// Positions in file order, triangles after triangulating the polygons.
     pub mesh: TriMesh,
     /// Objects in file order; they partition `mesh.triangles`.
     pub objects: Vec<ObjObject>,
@@ -57,6 +59,9 @@ pub fn read_obj(path: &Path) -> Result<ObjData, IoError> {
 
 /// Parses OBJ text; `path_for_errors` only labels error messages.
 pub fn parse_obj(text: &str, path_for_errors: &Path) -> Result<ObjData, IoError> {
+    // Editors on Windows start UTF-8 files with a byte-order mark; left in, it
+    // would hide the first record's keyword.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut p = Parser::default();
     for (i, raw) in text.lines().enumerate() {
         let line = i + 1;
@@ -143,14 +148,28 @@ impl Parser {
         }
         let face_uvs: Option<Vec<u32>> = corners.iter().map(|c| c.1).collect();
         self.all_faces_have_uvs &= face_uvs.is_some();
-        // Fan around the first corner: exact for the convex polygons DCC tools
-        // emit, and it keeps the polygon's orientation.
-        for k in 1..corners.len() - 1 {
+        let triangles = match corners.len() {
+            // Most faces: no polygon to triangulate.
+            3 => vec![[0, 1, 2]],
+            n => {
+                let positions: Vec<DVec3> = corners
+                    .iter()
+                    .map(|c| self.positions[c.0 as usize])
+                    .collect();
+                weft_geom::polygon::triangulate(&positions).map_err(|e| {
+                    format!(
+                        "the face with {n} corners cannot be triangulated: {}",
+                        e.describe(&|k| format!("v {}", corners[k].0 + 1))
+                    )
+                })?
+            }
+        };
+        for [a, b, c] in triangles {
             self.triangles
-                .push([corners[0].0, corners[k].0, corners[k + 1].0]);
+                .push([corners[a].0, corners[b].0, corners[c].0]);
             self.face_lines.push(line);
             if let Some(t) = &face_uvs {
-                self.face_uvs.push([t[0], t[k], t[k + 1]]);
+                self.face_uvs.push([t[a], t[b], t[c]]);
             }
         }
         Ok(())

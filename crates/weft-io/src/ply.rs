@@ -5,7 +5,8 @@
 //! Read: the `vertex` element's `x y z` (any scalar type; required) and
 //! `vx vy vz` (optional, all three or none); the `face` element's
 //! `vertex_indices` (or `vertex_index`) list with any integer count and index
-//! types, polygons fan-triangulated. Other properties and elements are skipped
+//! types, polygons triangulated by ear clipping in their plane
+//! ([`weft_geom::polygon`]; one it cannot triangulate is refused). Other properties and elements are skipped
 //! (a binary reader still has to walk them to know their sizes).
 //!
 //! Errors name the file and the header line, the ASCII body line, or the byte
@@ -23,6 +24,9 @@ pub struct PlyData {
     pub mesh: TriMesh,
     /// Per-vertex velocities from `vx vy vz`, if the file has them.
     pub velocities: Option<Vec<DVec3>>,
+    /// `face_of_triangle[t]`: the face element (0-based) triangle `t` was cut
+    /// from, so messages name what the file holds.
+    pub face_of_triangle: Vec<usize>,
 }
 
 /// Reads and parses a PLY file.
@@ -460,9 +464,9 @@ fn face_list(el: &Element) -> Result<usize, BodyError> {
 fn read_body(header: &Header, body: &mut Body) -> Result<PlyData, BodyError> {
     let mut positions = Vec::new();
     let mut velocities: Option<Vec<DVec3>> = None;
-    let mut triangles = Vec::new();
-    // The face of each triangle, for the index range check after all elements.
-    let mut face_of_triangle: Vec<usize> = Vec::new();
+    // The faces' corners, triangulated once every vertex is known (a face
+    // element may come before the vertex element).
+    let mut faces = Faces::default();
     let mut has_vertex = false;
     let mut values: Vec<f64> = Vec::new();
     let mut list: Vec<f64> = Vec::new();
@@ -507,7 +511,7 @@ fn read_body(header: &Header, body: &mut Body) -> Result<PlyData, BodyError> {
                             }
                         }
                         if keep {
-                            add_polygon(&list, i, line, &mut triangles, &mut face_of_triangle)?;
+                            faces.add(&list, i, line)?;
                         }
                         values.push(n);
                     }
@@ -525,20 +529,11 @@ fn read_body(header: &Header, body: &mut Body) -> Result<PlyData, BodyError> {
     if !has_vertex {
         return Err((None, "the header declares no \"vertex\" element".into()));
     }
-    let n = positions.len();
-    for (t, f) in triangles.iter().zip(&face_of_triangle) {
-        if let Some(&v) = t.iter().find(|&&v| v as usize >= n) {
-            return Err((
-                None,
-                format!(
-                    "face {f} (0-based) refers to vertex {v}, but the file has only {n} vertices"
-                ),
-            ));
-        }
-    }
+    let (triangles, face_of_triangle) = faces.triangulate(&positions)?;
     Ok(PlyData {
         mesh: TriMesh::new(positions, triangles),
         velocities,
+        face_of_triangle,
     })
 }
 
@@ -548,38 +543,79 @@ fn body_len(body: &Body) -> usize {
     }
 }
 
-fn add_polygon(
-    list: &[f64],
-    face: usize,
-    line: Option<usize>,
-    triangles: &mut Vec<[u32; 3]>,
-    face_of_triangle: &mut Vec<usize>,
-) -> Result<(), BodyError> {
-    if list.len() < 3 {
-        return Err((
-            line,
-            format!(
-                "face {face} (0-based) has {} vertices; at least 3 are needed",
-                list.len()
-            ),
-        ));
-    }
-    let mut idx = Vec::with_capacity(list.len());
-    for &v in list {
-        if v < 0.0 || v > u32::MAX as f64 {
+/// The face element's polygons, in file order.
+#[derive(Default)]
+struct Faces {
+    corners: Vec<u32>,
+    /// Per face: its index in the element, its line (ASCII) and where its
+    /// corners start in `corners`.
+    faces: Vec<(usize, Option<usize>, usize)>,
+}
+
+impl Faces {
+    fn add(&mut self, list: &[f64], face: usize, line: Option<usize>) -> Result<(), BodyError> {
+        if list.len() < 3 {
             return Err((
                 line,
-                format!("face {face} (0-based) has an invalid vertex index {v}"),
+                format!(
+                    "face {face} (0-based) has {} vertices; at least 3 are needed",
+                    list.len()
+                ),
             ));
         }
-        idx.push(v as u32);
+        self.faces.push((face, line, self.corners.len()));
+        for &v in list {
+            if v < 0.0 || v > u32::MAX as f64 {
+                return Err((
+                    line,
+                    format!("face {face} (0-based) has an invalid vertex index {v}"),
+                ));
+            }
+            self.corners.push(v as u32);
+        }
+        Ok(())
     }
-    // Fan around the first corner, keeping the polygon's orientation.
-    for k in 1..idx.len() - 1 {
-        triangles.push([idx[0], idx[k], idx[k + 1]]);
-        face_of_triangle.push(face);
+
+    /// Triangles of every face, in face order, and the face of each, after
+    /// checking the indices against the `positions` read.
+    fn triangulate(&self, positions: &[DVec3]) -> Result<(Vec<[u32; 3]>, Vec<usize>), BodyError> {
+        let n = positions.len();
+        let count = self.corners.len().saturating_sub(2 * self.faces.len());
+        let mut triangles = Vec::with_capacity(count);
+        let mut face_of_triangle = Vec::with_capacity(count);
+        for (k, &(face, line, start)) in self.faces.iter().enumerate() {
+            let end = self.faces.get(k + 1).map_or(self.corners.len(), |f| f.2);
+            let ids = &self.corners[start..end];
+            if let Some(&v) = ids.iter().find(|&&v| v as usize >= n) {
+                return Err((
+                    line,
+                    format!(
+                        "face {face} (0-based) refers to vertex {v}, but the file has only {n} vertices"
+                    ),
+                ));
+            }
+            if let &[a, b, c] = ids {
+                // Most faces: no polygon to triangulate.
+                triangles.push([a, b, c]);
+                face_of_triangle.push(face);
+                continue;
+            }
+            let corners: Vec<DVec3> = ids.iter().map(|&v| positions[v as usize]).collect();
+            let local = weft_geom::polygon::triangulate(&corners).map_err(|e| {
+                (
+                    line,
+                    format!(
+                        "face {face} (0-based) with {} corners cannot be triangulated: {}",
+                        ids.len(),
+                        e.describe(&|k| format!("vertex {}", ids[k]))
+                    ),
+                )
+            })?;
+            face_of_triangle.extend(std::iter::repeat_n(face, local.len()));
+            triangles.extend(local.into_iter().map(|t| t.map(|c| ids[c])));
+        }
+        Ok((triangles, face_of_triangle))
     }
-    Ok(())
 }
 
 /// The bytes [`write_ply`] writes: binary little-endian, `double x y z`

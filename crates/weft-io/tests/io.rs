@@ -743,13 +743,14 @@ mod read_mesh_validation {
             e,
             IoError::Mesh {
                 line: Some(8),
-                source: MeshError::DegenerateTriangle { triangle: 1, .. },
+                ref source,
                 ..
-            }
+            } if matches!(**source, MeshError::DegenerateTriangle { triangle: 1, .. })
         ));
         let msg = e.to_string();
+        // Elements as the file numbers them: OBJ `v` numbers, faces by line.
         assert!(
-            msg.contains("deg.obj:8: triangle 1 (vertices 0, 1, 3; 0-based) has zero area"),
+            msg.contains("deg.obj:8: the face on line 8 (v 1, v 2, v 4) has zero area"),
             "{msg}"
         );
     }
@@ -763,7 +764,7 @@ mod read_mesh_validation {
         let e = read_mesh(&path).unwrap_err();
         let msg = e.to_string();
         assert!(
-            msg.contains("dup.ply: triangle 1") && msg.contains("duplicates triangle 0"),
+            msg.contains("dup.ply: face 1 (vertices 1, 2, 0; 0-based) duplicates face 0"),
             "{msg}"
         );
     }
@@ -798,10 +799,10 @@ mod read_mesh_validation {
             matches!(
                 e,
                 IoError::Mesh {
-                    source: MeshError::Empty,
+                    ref source,
                     line: None,
                     ..
-                }
+                } if **source == MeshError::Empty
             ),
             "{e}"
         );
@@ -819,6 +820,153 @@ mod read_mesh_validation {
         assert!(
             matches!(e, IoError::Io { .. }) && e.to_string().contains("nope.obj"),
             "{e}"
+        );
+    }
+}
+
+/// Importing third-party meshes: what used to go silently wrong.
+mod import {
+    use super::*;
+
+    /// Twice the vector area of the triangles of `d` (for a planar polygon:
+    /// twice its area, along its normal).
+    fn vector_area(d: &weft_io::ObjData) -> DVec3 {
+        (0..d.mesh.num_triangles())
+            .map(|f| {
+                let [a, b, c] = d.mesh.corners(f);
+                (b - a).cross(c - a)
+            })
+            .sum()
+    }
+
+    /// What used to happen: `\u{feff}v 0 0 0` was not a `v` record, so every
+    /// index shifted by one (here: "vertex index 3 ... out of range").
+    #[test]
+    fn a_utf8_byte_order_mark_is_skipped() {
+        let text = "\u{feff}v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+        let d = obj(text);
+        assert_eq!(d.mesh.num_vertices(), 3);
+        assert_eq!(d.mesh.triangles, vec![[0, 1, 2]]);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bom.obj");
+        std::fs::write(&path, text.as_bytes()).unwrap();
+        assert_eq!(read_obj(&path).unwrap().mesh.num_vertices(), 3);
+    }
+
+    /// What used to happen: the fan from the first corner ran outside this
+    /// arrow (past its reflex corner, v 2) and made an inverted triangle.
+    #[test]
+    fn a_non_convex_polygon_is_ear_clipped_with_its_uvs() {
+        let d = obj("v -4 4 0\nv 0 0 0\nv -4 -4 0\nv 8 0 0\n\
+             vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
+             f 1/1 2/2 3/3 4/4\n");
+        assert_eq!(d.mesh.triangles.len(), 2);
+        // Both triangles face +z and their areas add up to the arrow's (32).
+        for f in 0..2 {
+            let [a, b, c] = d.mesh.corners(f);
+            assert!((b - a).cross(c - a).z > 0.0, "{:?}", d.mesh.triangles);
+        }
+        assert_eq!(vector_area(&d), DVec3::new(0.0, 0.0, 64.0));
+        // Each texture index travels with its vertex.
+        let uvs = d.face_uvs.as_ref().unwrap();
+        for (t, uv) in d.mesh.triangles.iter().zip(uvs) {
+            assert_eq!(t, uv, "corner k has vt k here");
+        }
+        assert_eq!(d.face_lines, vec![9, 9]);
+    }
+
+    /// What used to happen: the fan from corner 1 made the triangle (1, 2, 3)
+    /// of three collinear corners, refused as "triangle 0 ... has zero area".
+    #[test]
+    fn collinear_corners_make_no_zero_area_triangle() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("square.obj");
+        std::fs::write(
+            &path,
+            "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 2 1 0\nv 2 2 0\nv 1 2 0\nv 0 2 0\nv 0 1 0\n\
+             f 1 2 3 4 5 6 7 8\n",
+        )
+        .unwrap();
+        let f = read_mesh(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(f.mesh.num_triangles(), 6);
+        for t in 0..6 {
+            let [a, b, c] = f.mesh.corners(t);
+            assert!((b - a).cross(c - a).z > 0.0, "{:?}", f.mesh.triangles);
+        }
+    }
+
+    #[test]
+    fn a_self_intersecting_polygon_is_refused_naming_its_line_and_vertices() {
+        let e = obj_err(
+            "v 0 0 0\nv 4 4 0\nv 4 0 0\nv 0 6 0\n# a bow tie\nf 1 2 3 4\n",
+            &[
+                "bad.obj:6:",
+                "the face with 4 corners cannot be triangulated",
+                "its edges v 1–v 2 and v 3–v 4 cross",
+            ],
+        );
+        assert!(matches!(e, IoError::Parse { line: Some(6), .. }));
+        // Relative indices are named by their `v` numbers too.
+        obj_err(
+            "v 0 0 0\nv 2 0 0\nv 4 0 0\nf -3 -2 -1 -2\n",
+            &["bad.obj:4:", "cannot be triangulated"],
+        );
+        obj_err(
+            "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3 4\n",
+            &["bad.obj:5:", "zero area: its corners are collinear"],
+        );
+    }
+
+    #[test]
+    fn ply_polygons_are_ear_clipped_and_refused_alike() {
+        let ply = |vertices: &str, faces: &str, count: usize| {
+            format!(
+                "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
+                 property float z\nelement face {count}\nproperty list uchar int vertex_indices\n\
+                 end_header\n{vertices}{faces}"
+            )
+        };
+        let arrow = "-4 4 0\n0 0 0\n-4 -4 0\n8 0 0\n";
+        let d = parse_ply(ply(arrow, "4 0 1 2 3\n", 1).as_bytes(), Path::new("a.ply")).unwrap();
+        assert_eq!(d.mesh.num_triangles(), 2);
+        assert_eq!(d.face_of_triangle, vec![0, 0]);
+        for f in 0..2 {
+            let [a, b, c] = d.mesh.corners(f);
+            assert!((b - a).cross(c - a).z > 0.0, "{:?}", d.mesh.triangles);
+        }
+        ply_err(
+            ply("0 0 0\n4 4 0\n4 0 0\n0 6 0\n", "3 0 1 2\n4 0 1 2 3\n", 2).as_bytes(),
+            &[
+                "bad.ply:15:",
+                "face 1 (0-based) with 4 corners cannot be triangulated",
+                "vertex 0–vertex 1 and vertex 2–vertex 3 cross",
+            ],
+        );
+    }
+
+    /// What used to happen: one stray vertex at 1e30 in a 1 m cloth gave
+    /// "triangle 0 ... has zero area (area 1.07e-4, tolerance 1e46)".
+    #[test]
+    fn a_stray_vertex_far_away_is_named_with_its_obj_number() {
+        let src = std::fs::read_to_string(shared_data("meshes/square2K.obj")).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("stray.obj");
+        std::fs::write(&path, format!("{src}v 1e30 0 0\n")).unwrap();
+        let e = read_mesh(&path).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            matches!(
+                e,
+                IoError::Mesh { ref source, .. }
+                    if matches!(**source, MeshError::TooSmallForExtent { far_vertex: 1939, .. })
+            ),
+            "{msg}"
+        );
+        assert!(!msg.contains("zero area"), "{msg}");
+        assert!(
+            msg.contains("too small to resolve in a mesh 1.000e30 m across")
+                && msg.contains("v 1940 at (1e30, 0e0, 0e0)"),
+            "{msg}"
         );
     }
 }

@@ -1,6 +1,8 @@
 //! Scene-file features: mesh-sequence obstacles, translation with a stop,
 //! rest shapes from UVs and from a rest mesh, the window / internal-step keys,
-//! the camera, punched grids and boundary pins.
+//! the camera, punched grids and boundary pins, and what third-party meshes
+//! need (unwelded meshes refused, mesh warnings kept, per-axis scale, pin
+//! boxes relative to the object).
 
 use std::path::{Path, PathBuf};
 
@@ -286,7 +288,10 @@ fn rest_shape_from_uvs() {
     seam = seam.replacen("f 1/1 5/5 2/2", "f 1/9 5/5 2/2", 1);
     write(dir.path(), "seam.obj", &seam);
     let e = err(dir.path(), &text.replace("sheet.obj", "seam.obj"), &[]);
-    assert_has(&e, &["seam.obj:", "vertex 1", "seam"]);
+    assert_has(
+        &e,
+        &["seam.obj:", "v 1 has two texture coordinates", "seam"],
+    );
     let e = err(
         dir.path(),
         &format!("version = 1\n{CLOTH}rest = \"uv\"\n"),
@@ -741,4 +746,234 @@ boundary = "all"
         ),
         &["cloth[0] 'sleeve'", "exactly one of", "tube"],
     );
+}
+
+// ---------------------------------------------------------------- third-party meshes
+
+/// `sheet_obj(0.5, None)` written out as a triangle soup: one vertex per
+/// triangle corner, as some exporters write (8 triangles, 24 vertices on 9
+/// positions).
+fn soup_obj() -> String {
+    let mut s = String::new();
+    let p = |k: usize| (0.1 * (k % 3) as f64, 0.1 * (k / 3) as f64);
+    let mut corners = 0;
+    for j in 0..2 {
+        for i in 0..2 {
+            let a = j * 3 + i;
+            for tri in [[a, a + 4, a + 1], [a, a + 3, a + 4]] {
+                for k in tri {
+                    let (x, z) = p(k);
+                    s += &format!("v {x} 0.5 {z}\n");
+                }
+                s += &format!("f {} {} {}\n", corners + 1, corners + 2, corners + 3);
+                corners += 3;
+            }
+        }
+    }
+    s
+}
+
+/// What used to happen: the soup loaded, and `weft run` refused it at the
+/// start with "... apart, closer than the separation floor ...; move the
+/// objects apart", a cure that cannot work.
+#[test]
+fn an_unwelded_cloth_is_refused_with_the_count_and_the_first_places() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "soup.obj", &soup_obj());
+    let cloth = "version = 1\n[[cloth]]\nname = \"rag\"\nmesh = \"soup.obj\"\n";
+    let e = err(dir.path(), cloth, &[]);
+    // 24 vertices on 9 positions (two of them used once): welding removes 15.
+    assert_has(
+        &e,
+        &[
+            "cloth[0] 'rag'",
+            "soup.obj: 15 vertices lie exactly on other vertices, at 7 places",
+            "(v 1 = v 4; v 2 = v 6 = v 11 = v 15 = v 19 = v 22;",
+            "weld the mesh (15 coincident vertices)",
+        ],
+    );
+    // As an obstacle the same soup is fine: nothing there holds together.
+    let obstacle =
+        format!("version = 1\n{CLOTH}\n[[obstacle]]\nname = \"plate\"\nmesh = \"soup.obj\"\n");
+    load(dir.path(), &obstacle, &[]).unwrap();
+    // A PLY soup names its vertices 0-based, as PLY does.
+    let m = weft_io::read_obj(&dir.path().join("soup.obj"))
+        .unwrap()
+        .mesh;
+    weft_io::write_ply(
+        &dir.path().join("soup.ply"),
+        &m.positions,
+        &m.triangles,
+        None,
+    )
+    .unwrap();
+    let e = err(dir.path(), &cloth.replace("soup.obj", "soup.ply"), &[]);
+    assert_has(
+        &e,
+        &[
+            "(vertex 0 (0-based) = vertex 3 (0-based)",
+            "weld the mesh (15 coincident vertices)",
+        ],
+    );
+}
+
+#[test]
+fn mesh_warnings_are_kept_for_the_start_up_in_the_files_numbering() {
+    let dir = tempfile::tempdir().unwrap();
+    // The second face is flipped: both faces traverse the edge v 3 -> v 1.
+    // What used to happen: nothing said so (the reader's warnings were dropped).
+    write(
+        dir.path(),
+        "flip.obj",
+        "v 0 0.5 0\nv 0.1 0.5 0\nv 0.1 0.5 0.1\nv 0 0.5 0.1\nf 1 2 3\n# flipped\nf 1 4 3\n",
+    );
+    let s = load(
+        dir.path(),
+        "version = 1\n[[cloth]]\nname = \"c\"\nmesh = \"flip.obj\"\n",
+        &[],
+    )
+    .unwrap();
+    assert_eq!(s.warnings.len(), 1, "{:?}", s.warnings);
+    assert_has(
+        &s.warnings[0],
+        &[
+            "cloth[0] 'c': flip.obj: 1 interior edges are inconsistently oriented",
+            "from v 3 to v 1",
+            "the face on line 5 and the face on line 7",
+        ],
+    );
+    // The bundled generators make clean meshes.
+    let s = load(dir.path(), &format!("version = 1\n{CLOTH}"), &[]).unwrap();
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+}
+
+#[test]
+fn transform_scale_takes_one_factor_or_three() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = format!("version = 1\n{CLOTH}");
+    let extent = |s: &weft_io::scene::Scene| {
+        let (lo, hi) = weft_core::mesh::bounding_box(&s.world.objects[0].mesh.positions);
+        hi - lo
+    };
+    let plain = extent(&load(dir.path(), &base, &[]).unwrap());
+    let uniform = extent(&load(dir.path(), &base, &["cloth.0.transform.scale=2.0"]).unwrap());
+    assert_eq!(uniform, plain * 2.0);
+    let s = load(
+        dir.path(),
+        &base,
+        &[
+            "cloth.0.transform.scale=[3.0, 1.0, 0.5]",
+            "cloth.0.transform.translate=[0.0, 1.0, 0.0]",
+        ],
+    )
+    .unwrap();
+    assert_eq!(extent(&s), plain * DVec3::new(3.0, 1.0, 0.5));
+    // Scaled before it is moved: the grid's centre (0, 0.1, 0) lands at (0, 1.1, 0).
+    let (lo, hi) = weft_core::mesh::bounding_box(&s.world.objects[0].mesh.positions);
+    assert!((0.5 * (lo + hi) - DVec3::new(0.0, 1.1, 0.0)).length() < 1e-12);
+    for bad in ["[1.0, 0.0, 1.0]", "-1.0", "[1.0, inf, 1.0]"] {
+        let e = err(
+            dir.path(),
+            &base,
+            &[&format!("cloth.0.transform.scale={bad}")],
+        );
+        assert_has(
+            &e,
+            &[
+                "cloth[0] 'cloth'.transform.scale",
+                "[sx, sy, sz] of positive numbers",
+            ],
+        );
+    }
+    let e = err(dir.path(), &base, &["cloth.0.transform.scale=[1.0, 2.0]"]);
+    assert_has(&e, &["a number or an array of three numbers [sx, sy, sz]"]);
+}
+
+/// A scene whose cloth is a 0.4 m × 0.2 m grid, moved and stretched by its
+/// transform, with one pin given by `pin`.
+fn pinned_sheet(pin: &str) -> String {
+    format!(
+        r#"version = 1
+[[cloth]]
+name = "sheet"
+grid = {{ size = [0.4, 0.2], resolution = [9, 5], center = [0.0, 0.5, 0.0] }}
+transform = {{ scale = [2.0, 1.0, 1.0], translate = [1.0, 0.0, -0.3] }}
+
+[[pin]]
+name = "edge"
+object = "sheet"
+{pin}
+"#
+    )
+}
+
+fn pinned(s: &weft_io::scene::Scene) -> Vec<u32> {
+    s.world.pins[0].vertices.clone()
+}
+
+#[test]
+fn a_relative_pin_box_selects_what_the_equivalent_absolute_box_does() {
+    let dir = tempfile::tempdir().unwrap();
+    // The sheet spans x in [0.6, 1.4], y = 0.5, z in [-0.4, -0.2]: the row at
+    // the largest z and the column at the smallest x.
+    let relative = load(
+        dir.path(),
+        &pinned_sheet("box_min = [0.0, 0.0, 0.9]\nbox_max = [1.0, 1.0, 1.0]\nrelative = true"),
+        &[],
+    )
+    .unwrap();
+    let absolute = load(
+        dir.path(),
+        &pinned_sheet("box_min = [0.5, 0.4, -0.21]\nbox_max = [1.5, 0.6, -0.19]"),
+        &[],
+    )
+    .unwrap();
+    assert_eq!(pinned(&relative).len(), 9);
+    assert_eq!(pinned(&relative), pinned(&absolute));
+    // 0 and 1 are exactly the bounding box: its faces are inside.
+    let column = load(
+        dir.path(),
+        &pinned_sheet("box_min = [0.0, 0.0, 0.0]\nbox_max = [0.0, 1.0, 1.0]\nrelative = true"),
+        &[],
+    )
+    .unwrap();
+    assert_eq!(pinned(&column), vec![0, 9, 18, 27, 36]);
+}
+
+#[test]
+fn a_pin_box_that_selects_nothing_names_the_pin_and_the_object() {
+    let dir = tempfile::tempdir().unwrap();
+    // Millimetres instead of metres.
+    let e = err(
+        dir.path(),
+        &pinned_sheet("box_min = [500.0, 400.0, -210.0]\nbox_max = [1500.0, 600.0, -190.0]"),
+        &[],
+    );
+    assert_has(
+        &e,
+        &[
+            "pin[0] 'edge'.box_min",
+            "selects no vertex of cloth 'sheet'",
+            "bounding box runs from [0.6",
+        ],
+    );
+    let e = err(
+        dir.path(),
+        &pinned_sheet("box_min = [2.0, 0.0, 0.0]\nbox_max = [3.0, 1.0, 1.0]\nrelative = true"),
+        &[],
+    );
+    assert_has(
+        &e,
+        &[
+            "pin[0] 'edge'.box_min: the box from [2.19",
+            "(relative = true: [2.0, 0.0, 0.0] to [3.0, 1.0, 1.0] of the bounding box)",
+            "cloth 'sheet'",
+        ],
+    );
+    let e = err(
+        dir.path(),
+        &pinned_sheet("indices = [0]\nrelative = true"),
+        &[],
+    );
+    assert_has(&e, &["pin[0] 'edge'.relative", "give box_min and box_max"]);
 }

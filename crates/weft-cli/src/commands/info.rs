@@ -1,14 +1,23 @@
 //! `weft info SCENE.toml [--set ...] [--json]`: what a scene builds into —
-//! objects, vertices, triangles, hinges, masses, initial strain, the internal
-//! and layer steps, and an estimate of the memory a window needs.
+//! objects (with their bounding boxes, edge lengths and smallest altitudes),
+//! pins, vertices, triangles, hinges, masses, initial strain, the internal and
+//! layer steps, an estimate of the memory a window needs, the start-up
+//! warnings, and whether `weft run` would start: the engine's own check of the
+//! start state (contact closer than the separation floor, intersections),
+//! with a non-zero exit status when it would refuse.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Args;
 use serde::Serialize;
+use weft_core::mesh::bounding_box;
 use weft_io::scene::load_scene;
 use weft_io::scene::memory::estimated_bytes;
+use weft_sim::world::min_altitude;
+use weft_sim::{Engine, Serial, World};
+
+use super::startup;
 
 #[derive(Debug, Args)]
 pub struct InfoArgs {
@@ -31,6 +40,22 @@ pub struct ObjectInfo {
     pub triangles: usize,
     /// Total mass (kg); 0 for obstacles (kinematic).
     pub mass: f64,
+    /// Smallest and largest start coordinates (m), `[min, max]`.
+    pub bounding_box: [[f64; 3]; 2],
+    /// Shortest and longest triangle edge (m), `[min, max]`.
+    pub edge_length: [f64; 2],
+    /// Smallest triangle altitude (m); for a cloth, twice the largest
+    /// contact thickness it allows.
+    pub min_altitude: f64,
+}
+
+/// One pin of the scene.
+#[derive(Debug, Serialize)]
+pub struct PinInfo {
+    pub name: String,
+    pub object: String,
+    /// How many of the object's vertices it holds.
+    pub vertices: usize,
 }
 
 /// What `weft info` reports.
@@ -38,6 +63,7 @@ pub struct ObjectInfo {
 pub struct SceneInfo {
     pub scene: String,
     pub objects: Vec<ObjectInfo>,
+    pub pins: Vec<PinInfo>,
     pub vertices: usize,
     pub triangles: usize,
     pub hinges: usize,
@@ -61,26 +87,59 @@ pub struct SceneInfo {
     /// Bytes for state, forces and one window of internal-clock breakpoints
     /// (see [`estimated_bytes`]; contacts add more).
     pub estimated_bytes: u64,
+    /// What `weft run` warns about at start-up.
+    pub warnings: Vec<String>,
+    /// Why `weft run` would refuse the start state (the engine's own check:
+    /// contact closer than the separation floor, intersecting triangles), or
+    /// `None` when it would start.
+    pub start_refused: Option<String>,
 }
 
-/// Builds the scene and collects its figures.
+/// An object's figures.
+fn object_info(w: &World, o: &weft_sim::world::ObjectInfo) -> ObjectInfo {
+    let (lo, hi) = bounding_box(&w.x[o.vertices.start as usize..o.vertices.end as usize]);
+    let mut edge_length = [f64::INFINITY, 0.0f64];
+    let mut altitude = f64::INFINITY;
+    for t in o.triangles.clone() {
+        let p = w.triangles[t as usize].map(|i| w.x[i as usize]);
+        for k in 0..3 {
+            let e = (p[(k + 1) % 3] - p[k]).length();
+            edge_length = [edge_length[0].min(e), edge_length[1].max(e)];
+        }
+        altitude = altitude.min(min_altitude(p));
+    }
+    ObjectInfo {
+        name: o.name.clone(),
+        kind: if o.is_cloth { "cloth" } else { "obstacle" },
+        vertices: o.vertices.len(),
+        triangles: o.triangles.len(),
+        mass: if o.is_cloth {
+            o.vertices.clone().map(|i| w.mass[i as usize]).sum()
+        } else {
+            0.0
+        },
+        bounding_box: [lo.to_array(), hi.to_array()],
+        edge_length,
+        min_altitude: altitude,
+    }
+}
+
+/// Builds the scene, collects its figures and runs the engine's start-state
+/// check on it.
 pub fn scene_info(scene: &weft_io::scene::Scene) -> anyhow::Result<SceneInfo> {
     let w = weft_par::build_world(&scene.world)?;
-    let objects = w
-        .objects
+    let objects = w.objects.iter().map(|o| object_info(&w, o)).collect();
+    let pins = scene
+        .world
+        .pins
         .iter()
-        .map(|o| ObjectInfo {
-            name: o.name.clone(),
-            kind: if o.is_cloth { "cloth" } else { "obstacle" },
-            vertices: o.vertices.len(),
-            triangles: o.triangles.len(),
-            mass: if o.is_cloth {
-                o.vertices.clone().map(|i| w.mass[i as usize]).sum()
-            } else {
-                0.0
-            },
+        .map(|p| PinInfo {
+            name: p.name.clone(),
+            object: scene.world.objects[p.object].name.clone(),
+            vertices: p.vertices.len(),
         })
         .collect();
+    let warnings = startup::warnings(scene, &w);
     let max_initial_strain = w
         .internal
         .stretch
@@ -90,9 +149,10 @@ pub fn scene_info(scene: &weft_io::scene::Scene) -> anyhow::Result<SceneInfo> {
     let steps = w.lattice.steps_per_window;
     let window = w.lattice.window();
     let end = w.lattice.window_end_at_or_after(scene.end_time);
-    Ok(SceneInfo {
+    let mut info = SceneInfo {
         scene: scene.name.clone(),
         objects,
+        pins,
         vertices: w.num_vertices(),
         triangles: w.triangles.len(),
         hinges: w.internal.hinges.len(),
@@ -126,21 +186,53 @@ pub fn scene_info(scene: &weft_io::scene::Scene) -> anyhow::Result<SceneInfo> {
             w.internal.hinges.len() as u64,
             steps,
         ),
-    })
+        warnings,
+        start_refused: None,
+    };
+    // The check `weft run` makes before its first window (Engine::new).
+    info.start_refused = Engine::new(w, Serial).err().map(|e| e.to_string());
+    Ok(info)
 }
 
 pub fn run(a: InfoArgs) -> anyhow::Result<ExitCode> {
     let scene = load_scene(&a.scene, &a.overrides)?;
     let i = scene_info(&scene)?;
+    startup::print(&i.warnings);
+    // `weft run` would refuse: the same status as its error.
+    let status = match &i.start_refused {
+        None => ExitCode::SUCCESS,
+        Some(_) => ExitCode::from(1),
+    };
     if a.json {
         println!("{}", serde_json::to_string(&i)?);
-        return Ok(ExitCode::SUCCESS);
+        return Ok(status);
     }
+    print_text(&i);
+    Ok(status)
+}
+
+fn print_text(i: &SceneInfo) {
+    let v = |a: [f64; 3]| format!("({:.4}, {:.4}, {:.4})", a[0], a[1], a[2]);
     println!("scene {}", i.scene);
     for o in &i.objects {
         println!(
             "  {:<10} {:<8} {:>8} vertices {:>8} triangles  mass {:.4} kg",
             o.name, o.kind, o.vertices, o.triangles, o.mass
+        );
+        println!(
+            "  {:<10} box {} to {} m, edges {:.3e} to {:.3e} m, smallest altitude {:.3e} m",
+            "",
+            v(o.bounding_box[0]),
+            v(o.bounding_box[1]),
+            o.edge_length[0],
+            o.edge_length[1],
+            o.min_altitude
+        );
+    }
+    for p in &i.pins {
+        println!(
+            "  pin {:<10} holds {} vertices of '{}'",
+            p.name, p.vertices, p.object
         );
     }
     println!(
@@ -156,16 +248,21 @@ pub fn run(a: InfoArgs) -> anyhow::Result<ExitCode> {
         i.max_initial_strain
     );
     println!(
-        "internal step    {:.4e} s (omega_max {:.4e} rad/s), {} steps per window = {:.4e} s, {} windows to the end",
+        "internal step    {:.4e} s (highest natural frequency {:.4e} rad/s), {} steps per window = {:.4e} s, {} windows to the end",
         i.internal_step, i.omega_max, i.steps_per_window, i.window_seconds, i.windows_to_end
     );
     println!(
-        "contact          eta_1 {:.3e} m, floor {:.3e} m, k_1 {:.4e} N/m, h_1 {:.4e} s",
+        "contact          thickness {:.3e} m, separation floor {:.3e} m, layer-1 stiffness {:.4e} N/m and step {:.4e} s",
         i.contact_thickness, i.separation_floor, i.layer1_stiffness, i.layer1_step
     );
     println!(
         "memory           about {:.1} MB before contact (contacts add breakpoints)",
         i.estimated_bytes as f64 / 1e6
     );
-    Ok(ExitCode::SUCCESS)
+    match &i.start_refused {
+        None => println!(
+            "start state      ok: nothing closer than the separation floor, no intersection"
+        ),
+        Some(e) => println!("start state      weft run would refuse it: {e}"),
+    }
 }

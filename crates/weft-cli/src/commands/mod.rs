@@ -7,3 +7,4 @@ pub mod info;
 pub mod plot;
 pub mod render;
 pub mod run;
+pub mod startup;

@@ -109,8 +109,9 @@ pub const MAX_INTERVALS: u64 = 2048;
 pub const MAX_DEPTH: usize = 80;
 
 /// Coordinates (and `eta`) above this answer "yes": it keeps every
-/// intermediate of the certificate far from overflow.
-pub const COORD_LIMIT: f64 = 3.273_390_607_896_142e150; // 2^500
+/// intermediate of the certificate far from overflow. `2^500`; mesh
+/// validation refuses coordinates beyond it.
+pub const COORD_LIMIT: f64 = weft_core::MAX_COORDINATE;
 
 /// A probe time whose computed distance is at most `eta + YES_C * u * M` is
 /// answered "yes" unless a candidate normal certifies that instant. Not a

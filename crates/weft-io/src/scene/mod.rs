@@ -13,7 +13,8 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 use serde::Deserialize;
 use thiserror::Error;
-use weft_core::TriMesh;
+use weft_core::mesh::bounding_box;
+use weft_core::{ElementNames, TriMesh};
 use weft_sim::config::{ContactConfig, LimitsConfig, TimeConfig};
 use weft_sim::kinematics::{Keyframes, Motion};
 use weft_sim::materials::Material;
@@ -123,6 +124,9 @@ pub struct Scene {
     /// (a run may be resumed with a later end time): checkpoints record it and
     /// `--resume` refuses a scene that differs.
     pub fingerprint: String,
+    /// What loading found suspicious but simulable (mesh warnings, naming
+    /// elements as their files do), for the start-up warnings.
+    pub warnings: Vec<String>,
 }
 
 /// Loads `path` with `overrides` (`key.path=value`, applied in order).
@@ -238,12 +242,12 @@ fn apply_transform(
     path: &Path,
     key: &str,
 ) -> Result<(), SceneError> {
-    let s = t.scale.unwrap_or(1.0);
-    if !(s > 0.0 && s.is_finite()) {
+    let s = v3(t.scale.map_or([1.0; 3], schema::Scale::per_axis));
+    if !(s.cmpgt(DVec3::ZERO).all() && s.is_finite()) {
         return Err(invalid(
             path,
             format!("{key}.transform.scale"),
-            "must be a positive number",
+            "must be a positive number, or [sx, sy, sz] of positive numbers",
         ));
     }
     let axis = match t.rotate_axis {
@@ -330,15 +334,69 @@ fn object_friction(mu: Option<f64>, path: &Path, key: &str) -> Result<Option<f64
     }
 }
 
-fn load_mesh_file(scene: &Path, file: &str, key: &str) -> Result<TriMesh, SceneError> {
-    let p = scene.parent().unwrap_or(Path::new(".")).join(file);
-    crate::read_mesh(&p)
-        .map(|m| m.mesh)
-        .map_err(|e| SceneError::Mesh {
-            path: scene.to_path_buf(),
-            key: key.to_string(),
-            message: e.to_string(),
+/// Reads a mesh file for `key`; what validation found suspicious but
+/// simulable goes to `notes`, naming elements as the file numbers them.
+fn load_mesh_file(
+    scene: &Path,
+    file: &str,
+    key: &str,
+    notes: &mut Vec<String>,
+) -> Result<crate::MeshFile, SceneError> {
+    let m = load_mesh_full(scene, file, key)?;
+    let names = m.names();
+    notes.extend(
+        m.warnings
+            .iter()
+            .map(|w| format!("{key}: {file}: {}", w.describe(&names))),
+    );
+    Ok(m)
+}
+
+/// How many places [`refuse_unwelded`] lists.
+const LISTED_PLACES: usize = 4;
+
+/// Refuses a cloth mesh with vertices at exactly the same position: an
+/// unwelded mesh (one vertex per triangle corner, as some exporters write)
+/// holds together nowhere and starts in contact with itself everywhere.
+fn refuse_unwelded(
+    m: &crate::MeshFile,
+    scene: &Path,
+    key: &str,
+    file: &str,
+) -> Result<(), SceneError> {
+    let groups = weft_core::coincident::coincident_vertices(&m.mesh.positions);
+    if groups.is_empty() {
+        return Ok(());
+    }
+    let names = m.names();
+    let extra: usize = groups.iter().map(|g| g.len() - 1).sum();
+    let places: Vec<String> = groups
+        .iter()
+        .take(LISTED_PLACES)
+        .map(|g| {
+            g.iter()
+                .map(|&v| names.vertex(v))
+                .collect::<Vec<_>>()
+                .join(" = ")
         })
+        .collect();
+    Err(SceneError::Mesh {
+        path: scene.to_path_buf(),
+        key: key.to_string(),
+        message: format!(
+            "{file}: {extra} vertices lie exactly on other vertices, at {} places ({}{}): \
+             the triangles there are not joined, so the cloth would fall apart and start in \
+             contact with itself; weld the mesh ({extra} coincident vertices), e.g. Blender's \
+             Merge by Distance",
+            groups.len(),
+            places.join("; "),
+            if groups.len() > LISTED_PLACES {
+                "; …"
+            } else {
+                ""
+            }
+        ),
+    })
 }
 
 /// Reads a mesh file with what its format carries (UVs, source lines).
@@ -395,7 +453,7 @@ fn uv_rest(scene: &Path, c: &ClothSection, key: &str) -> Result<Vec<DVec3>, Scen
                         scene,
                         rest_key,
                         format!(
-                            "{f}{line}: vertex {} has two texture coordinates ({:?} and {:?}): a UV \
+                            "{f}{line}: v {} has two texture coordinates ({:?} and {:?}): a UV \
                              seam; \"uv\" needs one per vertex (split the mesh along the seam)",
                             v + 1,
                             prev,
@@ -415,7 +473,7 @@ fn uv_rest(scene: &Path, c: &ClothSection, key: &str) -> Result<Vec<DVec3>, Scen
                 scene,
                 format!("{key}.rest"),
                 format!(
-                    "{f}: vertex {} is in no face, so it has no texture coordinate",
+                    "{f}: v {} is in no face, so it has no texture coordinate",
                     v + 1
                 ),
             )),
@@ -566,6 +624,7 @@ fn load_sequence(
     seq: &MeshSequenceSection,
     transform: &Transform,
     key: &str,
+    notes: &mut Vec<String>,
 ) -> Result<(TriMesh, Keyframes), SceneError> {
     let seq_key = format!("{key}.mesh_sequence");
     if !(seq.frame_rate > 0.0 && seq.frame_rate.is_finite()) {
@@ -586,7 +645,15 @@ fn load_sequence(
     let mut first: Option<TriMesh> = None;
     let mut frames = Vec::with_capacity(files.len());
     for (i, f) in files.iter().enumerate() {
-        let mut m = load_mesh_file(scene, f, &format!("{seq_key}.files[{i}]"))?;
+        // Every frame has the first one's connectivity, so its notes stand
+        // for all of them.
+        let mut later_notes = Vec::new();
+        let sink = if i == 0 {
+            &mut *notes
+        } else {
+            &mut later_notes
+        };
+        let mut m = load_mesh_file(scene, f, &format!("{seq_key}.files[{i}]"), sink)?.mesh;
         apply_transform(&mut m, transform, scene, key)?;
         match &first {
             None => first = Some(m.clone()),
@@ -723,6 +790,56 @@ fn camera(c: &CameraSection, path: &Path) -> Result<CameraSettings, SceneError> 
         up: c.up,
         fov_degrees: c.fov_degrees,
     })
+}
+
+/// Pin selection `box_min`, `box_max` on `object` (object-local ids of the
+/// vertices inside the closed box). With `relative`, the corners are fractions
+/// of the object's bounding box. A box that selects nothing is refused: it is
+/// a typo or a unit mistake, and the pin would silently hold less.
+fn pin_box(
+    object: &ObjectSpec,
+    lo: DVec3,
+    hi: DVec3,
+    relative: bool,
+    path: &Path,
+    key: &str,
+) -> Result<Vec<u32>, SceneError> {
+    let positions = &object.mesh.positions;
+    let (min, max) = bounding_box(positions);
+    // min·(1 - t) + max·t is exactly min at t = 0 and max at t = 1.
+    let at = |t: DVec3| min * (DVec3::ONE - t) + max * t;
+    let given = (lo.to_array(), hi.to_array());
+    let (lo, hi) = if relative { (at(lo), at(hi)) } else { (lo, hi) };
+    let inside: Vec<u32> = (0..positions.len() as u32)
+        .filter(|&i| {
+            let x = positions[i as usize];
+            x.cmpge(lo).all() && x.cmple(hi).all()
+        })
+        .collect();
+    if inside.is_empty() {
+        return Err(invalid(
+            path,
+            format!("{key}.box_min"),
+            format!(
+                "the box from {:?} to {:?} m{} selects no vertex of cloth '{}', whose bounding \
+                 box runs from {:?} to {:?} m",
+                lo.to_array(),
+                hi.to_array(),
+                if relative {
+                    format!(
+                        " (relative = true: {:?} to {:?} of the bounding box)",
+                        given.0, given.1
+                    )
+                } else {
+                    String::new()
+                },
+                object.name,
+                min.to_array(),
+                max.to_array()
+            ),
+        ));
+    }
+    Ok(inside)
 }
 
 /// Pin selection `boundary = "all" | "outer"` on `mesh` (object-local ids).
@@ -865,6 +982,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
         1.0
     };
     let mut objects = Vec::new();
+    let mut notes = Vec::new();
     for (ci, c) in file.cloth.iter().enumerate() {
         let key = format!("cloth[{ci}] '{}'", c.name);
         let (mut mesh, flat) = match (&c.mesh, &c.grid) {
@@ -936,10 +1054,11 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                 ))
             }
             (Some(f), None) => {
-                let m = load_mesh_file(path, f, &key)?;
-                let (v, t) = (m.num_vertices() as f64, m.num_triangles() as f64);
+                let m = load_mesh_file(path, f, &key, &mut notes)?;
+                let (v, t) = (m.mesh.num_vertices() as f64, m.mesh.num_triangles() as f64);
                 budget.admit(path, &key, &format!("the mesh {f}"), v, t, true)?;
-                (m, None)
+                refuse_unwelded(&m, path, &key, f)?;
+                (m.mesh, None)
             }
             (None, Some(g)) => {
                 let (eu, ev) = match g.plane.as_str() {
@@ -1115,7 +1234,9 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             None => rest,
             Some(f) => {
                 let rest_key = format!("{key}.rest_mesh");
-                let mut r = load_mesh_file(path, f, &rest_key)?;
+                // The cloth's own file has already said what is suspicious
+                // about this connectivity.
+                let mut r = load_mesh_file(path, f, &rest_key, &mut Vec::new())?.mesh;
                 same_connectivity(&mesh, &r, path, &rest_key, f, "the cloth mesh")?;
                 apply_transform(&mut r, &c.transform, path, &key)?;
                 Some(r.positions)
@@ -1174,11 +1295,11 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
                     ));
                 }
                 let seq = o.mesh_sequence.as_ref().expect("checked");
-                let (m, k) = load_sequence(path, seq, &o.transform, &key)?;
+                let (m, k) = load_sequence(path, seq, &o.transform, &key, &mut notes)?;
                 keyframes = Some(k);
                 m
             }
-            (Some(f), None, None, None) => load_mesh_file(path, f, &key)?,
+            (Some(f), None, None, None) => load_mesh_file(path, f, &key, &mut notes)?.mesh,
             (None, Some(s), None, None) => {
                 if !pos(s.radius) || s.subdivisions > 7 {
                     return Err(invalid(
@@ -1267,13 +1388,20 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             })?;
         let mut vertices = p.indices.clone();
         match (p.box_min, p.box_max) {
-            (Some(lo), Some(hi)) => {
-                let (lo, hi) = (v3(lo), v3(hi));
-                for (i, x) in objects[object].mesh.positions.iter().enumerate() {
-                    if x.cmpge(lo).all() && x.cmple(hi).all() {
-                        vertices.push(i as u32);
-                    }
-                }
+            (Some(lo), Some(hi)) => vertices.extend(pin_box(
+                &objects[object],
+                v3(lo),
+                v3(hi),
+                p.relative,
+                path,
+                &key,
+            )?),
+            (None, None) if p.relative => {
+                return Err(invalid(
+                    path,
+                    format!("{key}.relative"),
+                    "belongs to a box: give box_min and box_max",
+                ))
             }
             (None, None) => {}
             _ => return Err(invalid(path, key, "give both box_min and box_max")),
@@ -1336,5 +1464,6 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
         camera: file.camera.as_ref().map(|c| camera(c, path)).transpose()?,
         overrides: overrides.to_vec(),
         fingerprint: String::new(),
+        warnings: notes,
     })
 }

@@ -498,14 +498,36 @@ fn default_rings() -> usize {
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Transform {
+    /// One factor, or one per axis.
     #[serde(default)]
-    pub scale: Option<f64>,
+    pub scale: Option<Scale>,
     #[serde(default)]
     pub rotate_axis: Option<[f64; 3]>,
     #[serde(default)]
     pub rotate_angle: f64,
     #[serde(default)]
     pub translate: [f64; 3],
+}
+
+/// `transform.scale`: `s` or `[sx, sy, sz]`.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(
+    untagged,
+    expecting = "a number or an array of three numbers [sx, sy, sz]"
+)]
+pub enum Scale {
+    Uniform(f64),
+    PerAxis([f64; 3]),
+}
+
+impl Scale {
+    /// The factor along each axis.
+    pub fn per_axis(self) -> [f64; 3] {
+        match self {
+            Scale::Uniform(s) => [s; 3],
+            Scale::PerAxis(s) => s,
+        }
+    }
 }
 
 /// A scripted motion.
@@ -546,6 +568,10 @@ pub struct PinSection {
     pub box_min: Option<[f64; 3]>,
     #[serde(default)]
     pub box_max: Option<[f64; 3]>,
+    /// The box corners are fractions of the object's bounding box (0 = its
+    /// minimum, 1 = its maximum, per axis), not metres.
+    #[serde(default)]
+    pub relative: bool,
     /// And/or the object's boundary vertices: "all", or "outer" (the
     /// boundary loop of greatest length, e.g. a sheet's border, not its holes).
     #[serde(default)]

@@ -436,6 +436,9 @@ pub(crate) fn execute_prepared<E: Executor>(
         hash,
         checkpoint,
     } = prepared;
+    if leader && !job.quiet {
+        super::startup::print(&super::startup::warnings(scene, &world));
+    }
     let mut engine = Engine::new(world, exec)?;
     let (frame_dt, frame_note) = frame_interval(scene, &engine.world);
     let machine = Machine::this();
