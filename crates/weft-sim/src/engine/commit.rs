@@ -1,0 +1,115 @@
+//! The commit of a window: retiring calm innermost layers (`acm-spec.md`
+//! §4, "Retiring layers").
+
+use weft_core::StencilKey;
+use weft_geom::ccd::{proximity, CcdStats};
+
+use super::Engine;
+use crate::executor::{CommError, Executor};
+use crate::layers::LayerState;
+use crate::trace;
+
+impl<E: Executor> Engine<E> {
+    /// Retires calm innermost layers; returns how many were retired.
+    ///
+    /// A stencil is calm in a window when it is certified to stay farther than
+    /// `eta_depth` over the whole window, T1 included (by the narrow phase, or
+    /// because its DOPs are apart: farther than `eta_1`). After
+    /// `retire_after_windows` calm windows in a row its innermost layer is
+    /// retired, then the next innermost as long as it is certified too — the
+    /// active set stays a prefix `1..=depth` — and the counter restarts.
+    pub(super) fn commit(&mut self, candidates: &[StencilKey]) -> Result<u64, CommError> {
+        const TASK: usize = 64;
+        let entries: Vec<(StencilKey, LayerState)> = (self.world.layers.stencils.iter())
+            .map(|(k, s)| (*k, *s))
+            .collect();
+        // Each stencil's new state depends on its own certificates only, so
+        // the stencils are decided on the executor and applied in key order.
+        // Tasks are runs of entries; each stencil is decided on the rank
+        // that holds its first vertex's breakpoints (on one memory every
+        // vertex is held by rank 0). Only the stencils among the candidates
+        // are certified again, so only their polylines are read — over
+        // ranks, fetched when held elsewhere.
+        let ranks = self.exec.ranks();
+        let holders = self.traj.holders();
+        let near: Vec<bool> = (entries.iter())
+            .map(|(key, _)| candidates.binary_search(key).is_ok())
+            .collect();
+        let mut by_rank: Vec<Vec<usize>> = vec![Vec::new(); ranks];
+        for (n, (key, _)) in entries.iter().enumerate() {
+            by_rank[holders[key.v[0] as usize] as usize].push(n);
+        }
+        let mut runs: Vec<&[usize]> = Vec::new();
+        let mut owner: Vec<u32> = Vec::new();
+        for (r, mine) in by_rank.iter().enumerate() {
+            for run in mine.chunks(TASK) {
+                runs.push(run);
+                owner.push(r as u32);
+            }
+        }
+        if ranks > 1 {
+            let mut reads = vec![Vec::new(); ranks];
+            for (run, &r) in runs.iter().zip(&owner) {
+                for &n in run.iter().filter(|&&n| near[n]) {
+                    reads[r as usize].extend_from_slice(&entries[n].0.v);
+                }
+            }
+            self.fetch_trajectories(reads)?;
+        }
+        let w = &self.world;
+        let traj = &self.traj;
+        let hysteresis = w.contact.retire_after_windows;
+        let decided = self.exec.map_on_ranks(runs.len(), &owner, &|t| {
+            let _span = trace::span_with("commit task", "first", runs[t][0] as u64);
+            let mut ccd = CcdStats::default();
+            let states: Vec<(LayerState, u64)> = runs[t]
+                .iter()
+                .map(|&n| {
+                    let (key, mut s) = entries[n];
+                    let tr = near[n].then(|| key.v.map(|i| traj.of(i as usize)));
+                    let mut certified_outside = |eta: f64| -> bool {
+                        tr.as_ref()
+                            .is_none_or(|tr| !proximity(key.kind, tr, eta, &mut ccd))
+                    };
+                    if !certified_outside(w.schedule.eta(s.depth)) {
+                        s.calm_windows = 0;
+                        return (s, 0);
+                    }
+                    s.calm_windows += 1;
+                    if s.calm_windows < hysteresis {
+                        return (s, 0);
+                    }
+                    s.calm_windows = 0;
+                    s.depth -= 1;
+                    let mut retired = 1;
+                    while s.depth > 0 && certified_outside(w.schedule.eta(s.depth)) {
+                        s.depth -= 1;
+                        retired += 1;
+                    }
+                    (s, retired)
+                })
+                .collect();
+            (states, ccd)
+        })?;
+        let mut retired = 0;
+        // (every entry is in exactly one run: each slot is overwritten)
+        let mut decided_states: Vec<(LayerState, u64)> =
+            entries.iter().map(|&(_, s)| (s, 0)).collect();
+        for ((states, ccd), run) in decided.into_iter().zip(&runs) {
+            self.ccd.merge(&ccd);
+            for (state, &n) in states.into_iter().zip(*run) {
+                decided_states[n] = state;
+            }
+        }
+        let layers = &mut self.world.layers.stencils;
+        for ((key, _), (s, r)) in entries.iter().zip(decided_states) {
+            retired += r;
+            if s.depth == 0 {
+                layers.remove(key);
+            } else {
+                layers.insert(*key, s);
+            }
+        }
+        Ok(retired)
+    }
+}

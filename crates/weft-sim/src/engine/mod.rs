@@ -1,0 +1,572 @@
+//! The speculative ACM loop (`acm-spec.md` §4): per window, run every event in
+//! time order, detect, and either commit or roll back with more layers.
+//!
+//! ```text
+//! snapshot (x, v, tau)                      -- not the active layers
+//! loop:
+//!     events in [T0, T1), batched per tick; record trajectory breakpoints
+//!     drift every vertex to T1
+//!     broad phase → candidate stencils → narrow phase: d ≤ eta_(depth+1) ever?
+//!     none: commit, retire calm innermost layers, diagnostics; done
+//!     else: restore the snapshot, activate depth+1 ..= depth+L of each reported
+//!           stencil (the layer set only grows within a window), run again
+//! ```
+//!
+//! Its stages, each in a module of its own: the events of a pass
+//! ([`events`]: internal ticks and penalty-layer batches, trajectories), the
+//! broad phase ([`crate::broad`]), the narrow phase ([`narrow`]) and the
+//! commit ([`commit`]: retiring layers).
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+mod commit;
+mod events;
+mod narrow;
+
+use glam::DVec3;
+use weft_core::{StencilKey, StencilKind};
+use weft_geom::ccd::CcdStats;
+use weft_geom::distance::stencil_closest;
+
+use crate::balance::CostModel;
+use crate::broad::BroadPhase;
+use crate::clock::Tick;
+use crate::diagnostics::{StageSeconds, WindowStats};
+use crate::error::SimError;
+use crate::executor::{Executor, Serial};
+use crate::share::RankShare;
+use crate::state::EngineState;
+use crate::trace;
+use crate::trajectory::Trajectories;
+use crate::world::World;
+use events::{PassCounts, Workspace};
+
+/// The state restored on rollback.
+#[derive(Clone, Debug)]
+struct Snapshot {
+    x: Vec<DVec3>,
+    v: Vec<DVec3>,
+    tau: Vec<Tick>,
+}
+
+impl Snapshot {
+    fn restore(&self, w: &mut World) {
+        w.x.copy_from_slice(&self.x);
+        w.v.copy_from_slice(&self.v);
+        w.tau.copy_from_slice(&self.tau);
+    }
+}
+
+/// Totals over a run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RunTotals {
+    pub windows: u64,
+    pub rollbacks: u64,
+    pub narrow_queries: u64,
+    pub max_depth: u32,
+    pub max_active_stencils: u64,
+}
+
+/// The ACM engine over a [`World`], running its stages on an [`Executor`].
+pub struct Engine<E: Executor = Serial> {
+    pub world: World,
+    exec: E,
+    traj: Trajectories,
+    ws: Workspace,
+    /// The broad phase's trees and scratch, reused across passes.
+    broad: BroadPhase,
+    pub totals: RunTotals,
+    pub ccd: CcdStats,
+    /// Set from outside (a signal handler, a deadline) to stop at the next
+    /// event batch, back at the window start.
+    interrupt: Option<Arc<AtomicBool>>,
+    /// Narrow-phase cost per partition pair, measured in the last pass.
+    narrow_costs: CostModel,
+    /// Over ranks: measured narrow-phase seconds per rank, since the start.
+    pub narrow_load: NarrowLoad,
+    /// Over ranks: this rank's share of the internal ticks.
+    share: Option<RankShare>,
+    /// Evaluate every penalty-layer event exactly (no sleeping, no
+    /// distance-bound skip): the same bits, slower; for verifying the skips.
+    every_layer_event: bool,
+}
+
+/// Narrow-phase work per rank (measured task seconds, summed over passes):
+/// as placed by the balancer, and as it would have fallen with every task on
+/// the home rank of its first partition (no balancer). Empty on one rank.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NarrowLoad {
+    pub balanced: Vec<f64>,
+    pub home_only: Vec<f64>,
+}
+
+impl NarrowLoad {
+    /// max / mean of `loads` (1 is perfect balance; `None` without work).
+    pub fn imbalance(loads: &[f64]) -> Option<f64> {
+        let total: f64 = loads.iter().sum();
+        let max = loads.iter().copied().fold(0.0, f64::max);
+        (total > 0.0).then(|| max * loads.len() as f64 / total)
+    }
+}
+
+impl<E: Executor> Engine<E> {
+    /// Wraps `world`, refusing an initial state in which a stencil is within
+    /// the floor `eta_inf` or two triangles intersect.
+    pub fn new(world: World, exec: E) -> Result<Self, SimError> {
+        let n = world.num_vertices();
+        let mut traj = Trajectories::new(n, world.limits.trajectory_budget_bytes);
+        let share = (exec.ranks() > 1).then(|| RankShare::new(&world, exec.rank(), exec.ranks()));
+        if let Some(share) = &share {
+            // A vertex's breakpoints are stored by its owner only; others
+            // fetch what their tasks read.
+            traj.hold_only(share.owner.clone(), share.rank as u32);
+        }
+        let mut engine = Self {
+            ws: Workspace::new(&world),
+            broad: BroadPhase::grouped(&world.partitioning.of_triangle),
+            world,
+            exec,
+            traj,
+            totals: RunTotals::default(),
+            ccd: CcdStats::default(),
+            interrupt: None,
+            narrow_costs: CostModel::default(),
+            narrow_load: NarrowLoad::default(),
+            share,
+            every_layer_event: false,
+        };
+        engine.check_initial_state()?;
+        Ok(engine)
+    }
+
+    /// Sets the memory budget of a window's trajectory breakpoints (bytes),
+    /// for example to go on after [`SimError::TrajectoryBudget`].
+    pub fn set_trajectory_budget(&mut self, bytes: usize) {
+        self.world.limits.trajectory_budget_bytes = bytes;
+        self.traj.set_budget(bytes);
+    }
+
+    /// Evaluates every penalty-layer event exactly when `on`: no stencil
+    /// sleeps and none is skipped by its distance bound. Skipped events kick
+    /// zero, so the bits are the same (tested); only the time differs.
+    pub fn evaluate_every_layer_event(&mut self, on: bool) {
+        self.every_layer_event = on;
+    }
+
+    /// The executor.
+    pub fn executor(&self) -> &E {
+        &self.exec
+    }
+
+    /// Makes [`Engine::step_window`] return [`SimError::Interrupted`] (with the
+    /// window start restored) soon after `flag` becomes true.
+    pub fn set_interrupt(&mut self, flag: Arc<AtomicBool>) {
+        self.interrupt = Some(flag);
+    }
+
+    fn interrupted(&self) -> bool {
+        self.interrupt
+            .as_ref()
+            .is_some_and(|f| f.load(Ordering::Relaxed))
+    }
+
+    /// The resumable state (call between windows).
+    pub fn state(&self) -> EngineState {
+        let w = &self.world;
+        EngineState {
+            tick: w.tick,
+            window_index: w.window_index,
+            x: w.x.iter().map(|p| p.to_array()).collect(),
+            v: w.v.iter().map(|p| p.to_array()).collect(),
+            tau: w.tau.clone(),
+            layers: w.layers.stencils.iter().map(|(k, s)| (*k, *s)).collect(),
+            totals: self.totals,
+        }
+    }
+
+    /// Continues from `state`, checked against this world: sizes, a tick on a
+    /// window boundary, finite values, every `tau` at the tick (states are
+    /// saved synchronized), layer keys that are stencils of this mesh.
+    pub fn restore(&mut self, state: EngineState) -> Result<(), SimError> {
+        let n = self.world.num_vertices();
+        let bad = |m: String| Err(SimError::StateMismatch(m));
+        if state.x.len() != n || state.v.len() != n || state.tau.len() != n {
+            return bad(format!(
+                "it has {} vertices, the scene has {n}",
+                state.x.len()
+            ));
+        }
+        let window = self.world.lattice.window();
+        if state.tick % window != 0 || state.tick / window != state.window_index {
+            return bad(format!(
+                "tick {} and window {} are not a window boundary of this scene's \
+                 lattice (window = {window} ticks)",
+                state.tick, state.window_index
+            ));
+        }
+        for i in 0..n {
+            if state.tau[i] != state.tick {
+                return bad(format!("vertex {i} is not synchronized at the saved tick"));
+            }
+            let finite = state.x[i].iter().chain(&state.v[i]).all(|c| c.is_finite());
+            if !finite {
+                return bad(format!("vertex {i} has a non-finite position or velocity"));
+            }
+        }
+        let mut layers = BTreeMap::new();
+        for (key, s) in &state.layers {
+            if key.v.iter().any(|&i| i as usize >= n) || s.depth == 0 {
+                return bad(format!(
+                    "active layer {key:?} (depth {}) is not a stencil of this mesh",
+                    s.depth
+                ));
+            }
+            layers.insert(*key, *s);
+        }
+        let w = &mut self.world;
+        w.tick = state.tick;
+        w.window_index = state.window_index;
+        w.x = state.x.into_iter().map(DVec3::from_array).collect();
+        w.v = state.v.into_iter().map(DVec3::from_array).collect();
+        w.tau = state.tau;
+        w.layers.stencils = layers;
+        self.totals = state.totals;
+        Ok(())
+    }
+
+    /// Refuses a start in which two triangles intersect (checked first, so
+    /// that crossing geometry is called so) or a stencil's primitives are
+    /// within the separation floor.
+    fn check_initial_state(&mut self) -> Result<(), SimError> {
+        let w = &self.world;
+        let hits = weft_geom::intersections::mesh_self_intersections(&w.x, &w.triangles);
+        let dynamic = |f: u32| {
+            w.triangles[f as usize]
+                .iter()
+                .any(|&i| w.inv_mass[i as usize] > 0.0)
+        };
+        if let Some(&(a, b)) = hits.iter().find(|&&(a, b)| dynamic(a) || dynamic(b)) {
+            return Err(SimError::InitialIntersection {
+                a: w.triangle_place(a),
+                b: w.triangle_place(b),
+            });
+        }
+        self.traj.begin(w.tick, &w.x);
+        let keys = self.broad.candidates_on(
+            &self.exec,
+            &w.triangles,
+            &w.inv_mass,
+            &self.traj,
+            0.5 * w.schedule.eta_1,
+        )?;
+        for key in keys {
+            let x = key.v.map(|i| w.x[i as usize]);
+            let c = stencil_closest(key.kind, &x);
+            if !(c.d > w.schedule.eta_inf) {
+                return Err(SimError::InitialContact {
+                    kind: kind_name(key.kind),
+                    key,
+                    pair: w.describe_stencil(&key),
+                    distance: c.d,
+                    floor: w.schedule.eta_inf,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Position of vertex `i` at tick `t` (drift without writing).
+    #[inline]
+    fn pos_at(world: &World, i: usize, t: Tick) -> DVec3 {
+        world.x[i] + world.v[i] * ((t - world.tau[i]) as f64 * world.lattice.quantum)
+    }
+
+    /// Runs one window to commit (with as many rollbacks as it needs).
+    ///
+    /// On an error (an interrupt included) the world is left exactly at the
+    /// last committed state — positions, velocities, clocks and the active
+    /// layers, without the layers this window's rollbacks added — so a
+    /// checkpoint taken then resumes bit-identically.
+    pub fn step_window(&mut self) -> Result<WindowStats, SimError> {
+        let committed_layers = self.world.layers.clone();
+        let result = self.run_window();
+        if result.is_err() {
+            self.world.layers = committed_layers;
+        }
+        result
+    }
+
+    fn run_window(&mut self) -> Result<WindowStats, SimError> {
+        let _span = trace::span_with("window", "window", self.world.window_index);
+        let started = Instant::now();
+        let t0 = self.world.tick;
+        let t1 = t0 + self.world.lattice.window();
+        let snap = Snapshot {
+            x: self.world.x.clone(),
+            v: self.world.v.clone(),
+            tau: self.world.tau.clone(),
+        };
+        let mut rollbacks = 0u32;
+        let mut blown_up = 0u32;
+        let mut confirmed = 0u64;
+        let mut stages = StageSeconds::default();
+        loop {
+            let clock = Instant::now();
+            let events_span = trace::span_with("events", "pass", rollbacks as u64);
+            let mut counts = match self.run_events(t0, t1) {
+                Ok(c) => c,
+                Err(e) => {
+                    snap.restore(&mut self.world);
+                    return Err(e);
+                }
+            };
+            drop(events_span);
+            stages.events += clock.elapsed().as_secs_f64();
+            stages.internal += counts.internal_seconds;
+            if let Some(e) = counts.interrupted.take() {
+                snap.restore(&mut self.world);
+                return Err(e);
+            }
+            let clock = Instant::now();
+            let broad_span = trace::span("broad");
+            let candidates = {
+                let w = &self.world;
+                self.broad.candidates_on(
+                    &self.exec,
+                    &w.triangles,
+                    &w.inv_mass,
+                    &self.traj,
+                    0.5 * w.schedule.eta_1,
+                )
+            };
+            drop(broad_span);
+            stages.broad += clock.elapsed().as_secs_f64();
+            let clock = Instant::now();
+            let count = candidates.as_ref().map_or(0, |c| c.len() as u64);
+            let narrow_span = trace::span_with("narrow", "candidates", count);
+            let found = candidates.and_then(|c| Ok((self.narrow_phase(&c)?, c)));
+            let (reported, candidates) = match found {
+                Ok(found) => found,
+                Err(e) => {
+                    snap.restore(&mut self.world);
+                    return Err(e.into());
+                }
+            };
+            drop(narrow_span);
+            stages.narrow += clock.elapsed().as_secs_f64();
+            // A pass that blew up is a detection too: the stencils near the
+            // vertex that went non-finite (typically pushed through too few
+            // layers) get more layers, like the reported ones, bounded by
+            // the rollback cap. With no stencil near it the blow-up is a
+            // real instability and the run stops with it.
+            let mut reported = reported;
+            if let Some(e) = counts.truncated.take() {
+                let &SimError::NonFinite { vertex, .. } = &e else {
+                    unreachable!("a pass is truncated by a non-finite value only")
+                };
+                let near = self.stencils_near(vertex, &candidates);
+                if reported.is_empty() && near.is_empty() {
+                    snap.restore(&mut self.world);
+                    return Err(e);
+                }
+                reported.extend(near);
+                reported.sort_unstable();
+                reported.dedup();
+                blown_up += 1;
+            }
+            if reported.is_empty() {
+                let clock = Instant::now();
+                let _commit_span = trace::span("commit");
+                let retired = match self.commit(&candidates) {
+                    Ok(retired) => retired,
+                    Err(e) => {
+                        snap.restore(&mut self.world);
+                        return Err(e.into());
+                    }
+                };
+                self.world.tick = t1;
+                let mut stats = self.window_stats(
+                    counts,
+                    rollbacks,
+                    candidates.len() as u64,
+                    confirmed,
+                    retired,
+                    &candidates,
+                    started,
+                );
+                stages.commit += clock.elapsed().as_secs_f64();
+                stats.stage_seconds = stages;
+                self.world.window_index += 1;
+                self.totals.windows += 1;
+                self.totals.rollbacks += rollbacks as u64;
+                self.totals.max_depth = self.totals.max_depth.max(stats.max_depth);
+                self.totals.max_active_stencils =
+                    self.totals.max_active_stencils.max(stats.active_stencils);
+                return Ok(stats);
+            }
+            confirmed += reported.len() as u64;
+            // Roll back: restore the state, keep (and extend) the layers.
+            snap.restore(&mut self.world);
+            let extra = self.world.contact.layers_per_detection;
+            let resolved = self.world.schedule.resolved_depth();
+            for key in &reported {
+                let depth = self.world.layers.depth(key) + extra;
+                if depth > resolved {
+                    let w = &self.world;
+                    return Err(SimError::LayerTooDeep {
+                        time: w.lattice.seconds(t0),
+                        key: *key,
+                        pair: w.describe_stencil(key),
+                        depth,
+                        resolved,
+                    });
+                }
+                self.world.layers.deepen(*key, extra);
+            }
+            rollbacks += 1;
+            let so_far = self.totals.rollbacks + rollbacks as u64;
+            crate::failpoint::hit("mid-rollback", so_far);
+            if crate::failpoint::triggered("interrupt-after-rollback", so_far) {
+                if let Some(flag) = &self.interrupt {
+                    flag.store(true, Ordering::Relaxed);
+                }
+            }
+            if rollbacks > self.world.contact.max_rollbacks {
+                let key = reported[reported.len() - 1];
+                let w = &self.world;
+                return Err(SimError::RollbackCap {
+                    time: w.lattice.seconds(t0),
+                    cap: w.contact.max_rollbacks,
+                    kind: kind_name(key.kind),
+                    key,
+                    pair: w.describe_stencil(&key),
+                    position: w.x[key.v[0] as usize].to_array(),
+                    depth: w.layers.depth(&key),
+                    blown_up,
+                });
+            }
+        }
+    }
+
+    /// The stencils near vertex `i` that went non-finite in a pass: the
+    /// active ones and this pass's candidates with a vertex in `i`'s ring
+    /// (`i` and the vertices of its triangles), in key order.
+    fn stencils_near(&self, i: u32, candidates: &[StencilKey]) -> Vec<StencilKey> {
+        let w = &self.world;
+        let mut ring: Vec<u32> = vec![i];
+        for &f in w.topology.faces_of_vertex(i) {
+            ring.extend_from_slice(&w.triangles[f as usize]);
+        }
+        ring.sort_unstable();
+        ring.dedup();
+        let touches = |k: &&StencilKey| k.v.iter().any(|v| ring.binary_search(v).is_ok());
+        let mut near: Vec<StencilKey> = (w.layers.stencils.keys())
+            .chain(candidates)
+            .filter(touches)
+            .copied()
+            .collect();
+        near.sort_unstable();
+        near.dedup();
+        near
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn window_stats(
+        &self,
+        counts: PassCounts,
+        rollbacks: u32,
+        candidates: u64,
+        confirmed: u64,
+        retired: u64,
+        candidate_keys: &[StencilKey],
+        started: Instant,
+    ) -> WindowStats {
+        let w = &self.world;
+        let mut min_sep = counts.min_separation;
+        for key in candidate_keys {
+            let x = key.v.map(|i| w.x[i as usize]);
+            min_sep = min_sep.min(stencil_closest(key.kind, &x).d);
+        }
+        let e = self.energies();
+        let (lin, ang) = self.momenta();
+        let hist = w.layers.depth_histogram();
+        WindowStats {
+            window: w.window_index,
+            time: w.time(),
+            tick: w.tick,
+            internal_events: counts.internal_events,
+            internal_stencil_evaluations: counts.internal_events * w.internal.num_stencils() as u64,
+            layer_events: counts.layer_events,
+            layer_evaluations: counts.layer_evaluations,
+            layer_kicks: counts.layer_kicks,
+            rollbacks,
+            active_stencils: w.layers.stencils.len() as u64,
+            max_depth: hist.len() as u32,
+            depth_histogram: hist,
+            candidates,
+            confirmed,
+            retired_layers: retired,
+            breakpoints: self.traj.breakpoints() as u64,
+            min_separation: min_sep.is_finite().then_some(min_sep),
+            kinetic_energy: e.0,
+            potential_energy: e.1 + e.2,
+            contact_energy: e.2,
+            linear_momentum: lin.to_array(),
+            angular_momentum: ang.to_array(),
+            wall_seconds: started.elapsed().as_secs_f64(),
+            stage_seconds: StageSeconds::default(),
+        }
+    }
+
+    /// (kinetic, elastic + gravity, penalty) energy at the current
+    /// (synchronized) state.
+    pub fn energies(&self) -> (f64, f64, f64) {
+        let w = &self.world;
+        let mut kin = 0.0;
+        let mut grav = 0.0;
+        for i in 0..w.x.len() {
+            if w.inv_mass[i] > 0.0 {
+                kin += 0.5 * w.mass[i] * w.v[i].length_squared();
+                grav -= w.mass[i] * w.gravity.dot(w.x[i]);
+            }
+        }
+        let elastic = w.internal.energy(&w.x);
+        let mut penalty = 0.0;
+        for (key, s) in &w.layers.stencils {
+            let x = key.v.map(|i| w.x[i as usize]);
+            let d = stencil_closest(key.kind, &x).d;
+            penalty += w.schedule.energy_through(s.depth, d);
+        }
+        (kin, elastic + grav, penalty)
+    }
+
+    /// Linear and angular momentum (about the origin) of the dynamic vertices.
+    pub fn momenta(&self) -> (DVec3, DVec3) {
+        let w = &self.world;
+        let mut lin = DVec3::ZERO;
+        let mut ang = DVec3::ZERO;
+        for i in 0..w.x.len() {
+            if w.inv_mass[i] > 0.0 {
+                let p = w.v[i] * w.mass[i];
+                lin += p;
+                ang += w.x[i].cross(p);
+            }
+        }
+        (lin, ang)
+    }
+
+    /// Hash of the state: see [`crate::hash::state_hash`].
+    pub fn state_hash(&self) -> String {
+        crate::hash::state_hash(&self.world)
+    }
+}
+
+fn kind_name(k: StencilKind) -> &'static str {
+    match k {
+        StencilKind::VertexFace => "vertex-face",
+        StencilKind::EdgeEdge => "edge-edge",
+    }
+}

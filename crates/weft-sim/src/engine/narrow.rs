@@ -1,0 +1,160 @@
+//! The narrow phase of a pass (`acm-spec.md` §4.3): every candidate
+//! stencil certified to stay outside `eta_(depth+1)`, or reported.
+
+use std::time::Instant;
+
+use weft_core::StencilKey;
+use weft_geom::ccd::{proximity, CcdStats};
+
+use super::Engine;
+use crate::balance::{locality_aware, CollisionTasks};
+use crate::executor::{CommError, Executor};
+use crate::trace;
+
+impl<E: Executor> Engine<E> {
+    /// Over ranks: every rank gets, from the ranks that hold them, the
+    /// polylines of the vertices its tasks read (`reads[r]` for rank `r`,
+    /// in any order, repeats allowed) and does not hold itself. Every rank
+    /// works out the same traffic from the same placement, so nothing is
+    /// requested: holders send, readers receive, point to point, exact bits
+    /// (`Trajectories::fetched`). The polylines stay cached for the window.
+    pub(super) fn fetch_trajectories(&mut self, mut reads: Vec<Vec<u32>>) -> Result<(), CommError> {
+        let me = self.exec.rank();
+        let holders = self.traj.holders();
+        // (holder, reader) → vertices, ascending; only pairs with this rank.
+        let mut travel: std::collections::BTreeMap<(usize, usize), Vec<u32>> = Default::default();
+        for (r, list) in reads.iter_mut().enumerate() {
+            list.sort_unstable();
+            list.dedup();
+            for &v in list.iter() {
+                let h = holders[v as usize] as usize;
+                if h != r && (r == me || h == me) {
+                    travel.entry((h, r)).or_default().push(v);
+                }
+            }
+        }
+        let mut sends: Vec<(usize, Vec<f64>)> = Vec::new();
+        let mut recvs: Vec<(usize, Vec<u32>)> = Vec::new();
+        for ((h, r), vertices) in travel {
+            if r == me {
+                recvs.push((h, vertices));
+            } else {
+                let mut words = Vec::new();
+                for &v in &vertices {
+                    self.traj.words_of(v as usize, &mut words);
+                }
+                sends.push((r, words));
+            }
+        }
+        let lens: Vec<(usize, usize)> = recvs
+            .iter()
+            .map(|(h, vs)| {
+                (
+                    *h,
+                    vs.iter().map(|&v| 4 * self.traj.count(v as usize)).sum(),
+                )
+            })
+            .collect();
+        let received = self.exec.exchange_words(sends, &lens, &mut || {})?;
+        for ((_, vertices), words) in recvs.iter().zip(received) {
+            let mut at = 0;
+            for &v in vertices {
+                at += self.traj.fetched(v as usize, &words[at..]);
+            }
+        }
+        Ok(())
+    }
+
+    /// Stencils among `candidates` (sorted) that may come within
+    /// `eta_(depth+1)`, in key order.
+    ///
+    /// Candidates are grouped by partition pair and split into tasks whose
+    /// cost is predicted from the previous pass ([`crate::balance`]); the
+    /// executor gets them largest first. Each candidate is tested once and
+    /// the answers are sorted, so the result does not depend on the tasks.
+    ///
+    /// Over ranks, the tasks are placed by the paper's Algorithm 2
+    /// ([`crate::balance::locality_aware`]: home rank first while under the
+    /// average load) and every rank gets every answer.
+    pub(super) fn narrow_phase(
+        &mut self,
+        candidates: &[StencilKey],
+    ) -> Result<Vec<StencilKey>, CommError> {
+        const TASK: f64 = 64.0;
+        let costs = &self.narrow_costs;
+        let tasks = CollisionTasks::build(
+            candidates,
+            &self.world.partitioning,
+            costs,
+            TASK * costs.mean(),
+        );
+        let order = tasks.by_load();
+        let ranks = self.exec.ranks();
+        let mut owner = vec![0u32; order.len()];
+        if ranks > 1 {
+            // The partitions' home ranks, placed once for the run.
+            let home = self.share.as_ref().map_or(&[][..], |s| &s.home[..]);
+            let by_load: Vec<_> = order.iter().map(|&t| tasks.tasks[t].clone()).collect();
+            let (assigned, _) = locality_aware(&by_load, ranks, &|p| home[p as usize] as usize);
+            let mut reads = vec![Vec::new(); ranks];
+            for (r, mine) in assigned.iter().enumerate() {
+                for &n in mine {
+                    owner[n] = r as u32;
+                    let task = &tasks.tasks[order[n]];
+                    for &c in &tasks.order[task.range.clone()] {
+                        reads[r].extend_from_slice(&candidates[c as usize].v);
+                    }
+                }
+            }
+            self.fetch_trajectories(reads)?;
+        }
+        let w = &self.world;
+        let traj = &self.traj;
+        let costs = &mut self.narrow_costs;
+        let home = self.share.as_ref().map_or(&[][..], |s| &s.home[..]);
+        let answers = self.exec.map_on_ranks(order.len(), &owner, &|n| {
+            let task = &tasks.tasks[order[n]];
+            let _span = trace::span_with("narrow task", "candidates", task.range.len() as u64);
+            let clock = Instant::now();
+            let mut stats = CcdStats::default();
+            let mut reported = Vec::new();
+            for &c in &tasks.order[task.range.clone()] {
+                let key = &candidates[c as usize];
+                let eta = w.schedule.eta(w.layers.depth(key) + 1);
+                let tr = key.v.map(|i| traj.of(i as usize));
+                if proximity(key.kind, &tr, eta, &mut stats) {
+                    reported.push(*key);
+                }
+            }
+            let seconds = clock.elapsed().as_secs_f64();
+            (
+                reported,
+                stats,
+                (task.pair, seconds, task.range.len() as u64),
+            )
+        })?;
+        self.totals.narrow_queries += candidates.len() as u64;
+        let mut reported = Vec::new();
+        let mut measured = Vec::with_capacity(answers.len());
+        let load = &mut self.narrow_load;
+        if ranks > 1 {
+            load.balanced.resize(ranks, 0.0);
+            load.home_only.resize(ranks, 0.0);
+        }
+        for (n, (r, stats, m)) in answers.into_iter().enumerate() {
+            reported.extend(r);
+            self.ccd.merge(&stats);
+            if ranks > 1 {
+                let (a, b) = m.0;
+                let first = if a != weft_core::NONE { a } else { b };
+                let home_rank = home.get(first as usize).map_or(0, |&r| r as usize);
+                load.balanced[owner[n] as usize] += m.1;
+                load.home_only[home_rank] += m.1;
+            }
+            measured.push(m);
+        }
+        costs.record(measured);
+        reported.sort_unstable();
+        Ok(reported)
+    }
+}
