@@ -27,6 +27,13 @@ pub struct WindowStats {
     pub layer_evaluations: u64,
     /// Penalty evaluations that kicked (stencil inside its layer).
     pub layer_kicks: u64,
+    /// Contact islands of the committed pass (`crate::islands`) and the
+    /// layer events of the largest one (its share of `layer_events` is what
+    /// bounds running islands in parallel).
+    #[serde(default)]
+    pub islands: u64,
+    #[serde(default)]
+    pub largest_island_layer_events: u64,
     /// Rollbacks of this window.
     pub rollbacks: u32,
     /// Active stencils at commit (after retirement) and their depth histogram

@@ -14,7 +14,7 @@
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
-use weft_core::StencilKey;
+use weft_core::NONE;
 
 use crate::clock::Tick;
 
@@ -33,9 +33,11 @@ pub struct Dormancy {
 }
 
 impl Dormancy {
-    /// Every stencil of `active` awake, for a pass over `n` vertices.
-    pub fn reset(&mut self, active: &[(StencilKey, u32)], n: usize) {
-        let m = active.len();
+    /// Every stencil awake, for stencils on the vertices `stencils` (four
+    /// each; `NONE` entries are vertices whose velocity never changes here,
+    /// and are left out of the index) over `n` vertices.
+    pub fn reset(&mut self, stencils: &[[u32; 4]], n: usize) {
+        let m = stencils.len();
         self.asleep.clear();
         self.asleep.resize(m, false);
         self.generation.clear();
@@ -45,8 +47,9 @@ impl Dormancy {
         self.awake.extend(0..m as u32);
         self.offsets.clear();
         self.offsets.resize(n + 1, 0);
-        for (key, _) in active {
-            for &i in &key.v {
+        let listed = |v: &[u32; 4]| v.iter().copied().filter(|&i| i != NONE).collect::<Vec<_>>();
+        for v in stencils {
+            for i in listed(v) {
                 self.offsets[i as usize + 1] += 1;
             }
         }
@@ -56,12 +59,18 @@ impl Dormancy {
         self.of_vertex.clear();
         self.of_vertex.resize(self.offsets[n] as usize, 0);
         let mut fill = self.offsets.clone();
-        for (a, (key, _)) in active.iter().enumerate() {
-            for &i in &key.v {
+        for (a, v) in stencils.iter().enumerate() {
+            for i in listed(v) {
                 self.of_vertex[fill[i as usize] as usize] = a as u32;
                 fill[i as usize] += 1;
             }
         }
+    }
+
+    /// The earliest tick at which an asleep stencil is due to wake (stale
+    /// entries included: never later than the truth).
+    pub fn next_due(&self) -> Option<Tick> {
+        self.due.peek().map(|r| r.0 .0)
     }
 
     /// The awake stencils (unordered).
@@ -136,13 +145,10 @@ mod tests {
 
     #[test]
     fn stencils_wake_on_time_on_a_velocity_change_or_all_at_once() {
-        let active = vec![
-            (StencilKey::vertex_face(0, [1, 2, 3]), 1),
-            (StencilKey::vertex_face(4, [1, 2, 3]), 1),
-            (StencilKey::edge_edge([4, 5], [6, 7]), 2),
-        ];
+        // Vertex 1 never changes velocity (left out of the index).
+        let stencils = [[0, NONE, 2, 3], [4, 1, 2, 3], [4, 5, 6, 7]];
         let mut d = Dormancy::default();
-        d.reset(&active, 8);
+        d.reset(&stencils, 8);
         let sorted = |d: &Dormancy| {
             let mut v = d.awake().to_vec();
             v.sort_unstable();
@@ -154,6 +160,7 @@ mod tests {
         d.sleep(2, 20);
         d.drop_sleepers();
         assert!(d.awake().is_empty());
+        assert_eq!(d.next_due(), Some(10));
         d.wake_due(9);
         assert!(d.awake().is_empty());
         d.wake_due(10);

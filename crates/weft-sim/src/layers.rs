@@ -18,7 +18,7 @@ use std::collections::BTreeMap;
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
-use weft_core::StencilKey;
+use weft_core::{StencilKey, NONE};
 use weft_geom::distance::Closest;
 
 use crate::clock::Tick;
@@ -276,12 +276,13 @@ impl FrictionClamp {
     }
 
     /// Adds the friction of a kick on stencil vertices `v` (first pass over
-    /// the batch, in fold order); `w` are the inverse masses of every vertex.
-    pub fn add(&mut self, v: &[u32; 4], w: &[f64], kick: &PenaltyImpulse) {
+    /// the batch, in fold order); `NONE` marks a kinematic vertex, which no
+    /// kick moves.
+    pub fn add(&mut self, v: &[u32; 4], kick: &PenaltyImpulse) {
         for j in 0..4 {
             let i = v[j] as usize;
             let f = kick.friction[j].length();
-            if w[i] > 0.0 && f > 0.0 {
+            if v[j] != NONE && f > 0.0 {
                 self.sum[i] += f;
                 self.limit[i] = self.limit[i].max(f * kick.stop_ratio);
             }
@@ -290,11 +291,11 @@ impl FrictionClamp {
 
     /// The factor (in `(0, 1]`) by which the whole friction impulse of a kick
     /// added before is scaled (second pass).
-    pub fn scale(&self, v: &[u32; 4], w: &[f64], kick: &PenaltyImpulse) -> f64 {
+    pub fn scale(&self, v: &[u32; 4], kick: &PenaltyImpulse) -> f64 {
         let mut s = 1.0f64;
         for j in 0..4 {
             let i = v[j] as usize;
-            if w[i] > 0.0 && kick.friction[j] != DVec3::ZERO && self.sum[i] > self.limit[i] {
+            if v[j] != NONE && kick.friction[j] != DVec3::ZERO && self.sum[i] > self.limit[i] {
                 s = s.min(self.limit[i] / self.sum[i]);
             }
         }
@@ -303,7 +304,7 @@ impl FrictionClamp {
 
     /// Forgets the batch's sums at stencil vertices `v` (after the second pass).
     pub fn clear(&mut self, v: &[u32; 4]) {
-        for &i in v {
+        for &i in v.iter().filter(|&&i| i != NONE) {
             self.sum[i as usize] = 0.0;
             self.limit[i as usize] = 0.0;
         }
@@ -398,14 +399,16 @@ mod tests {
                     (v, k.unwrap())
                 })
                 .collect();
+            // The clamp's view: kinematic vertices marked NONE.
+            let dynamic = |v: &[u32; 4]| v.map(|i| if w[i as usize] > 0.0 { i } else { NONE });
             for (v, k) in &kicks {
-                clamp.add(v, &w, k);
+                clamp.add(&dynamic(v), k);
             }
             let mut got = vec![DVec3::ZERO; n];
             let mut limit = vec![0.0f64; n];
             let mut count = vec![0; n];
             for (v, k) in &kicks {
-                let s = clamp.scale(v, &w, k);
+                let s = clamp.scale(&dynamic(v), k);
                 assert!(s > 0.0 && s <= 1.0);
                 clamped += usize::from(s < 1.0);
                 let total: DVec3 = k.friction.iter().map(|f| *f * s).sum();
@@ -425,9 +428,9 @@ mod tests {
             for (v, k) in &kicks {
                 let alone = v.iter().all(|&i| count[i as usize] <= 1);
                 if alone {
-                    assert_eq!(clamp.scale(v, &w, k), 1.0);
+                    assert_eq!(clamp.scale(&dynamic(v), k), 1.0);
                 }
-                clamp.clear(v);
+                clamp.clear(&dynamic(v));
             }
             assert!(clamp.sum.iter().chain(&clamp.limit).all(|&x| x == 0.0));
         }

@@ -37,6 +37,7 @@ pub mod executor;
 pub mod failpoint;
 pub mod hash;
 pub mod internal;
+pub mod islands;
 pub mod kinematics;
 pub mod layers;
 pub mod materials;

@@ -502,6 +502,8 @@ impl<E: Executor> Engine<E> {
             layer_events: counts.layer_events,
             layer_evaluations: counts.layer_evaluations,
             layer_kicks: counts.layer_kicks,
+            islands: counts.islands,
+            largest_island_layer_events: counts.largest_island_layer_events,
             rollbacks,
             active_stencils: w.layers.stencils.len() as u64,
             max_depth: hist.len() as u32,

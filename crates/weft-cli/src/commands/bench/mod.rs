@@ -99,11 +99,17 @@ struct Sample {
     /// Internal stencil evaluations over all passes (rolled-back ones too).
     internal_evaluations_all_passes: u64,
     layer_events: u64,
+    /// Contact islands summed over windows, and the layer events of each
+    /// window's largest island.
+    islands: u64,
+    largest_island_layer_events: u64,
     rollbacks: u64,
     /// Narrow-phase queries over all passes (rolled-back ones included).
     narrow_queries: u64,
     active_stencils: u64,
     max_depth: u32,
+    /// Stencils per contact island after the last window.
+    island_sizes: Vec<u64>,
     state_hash: String,
     /// Each rank's own figures (one entry on one rank).
     ranks: Vec<RankSample>,
@@ -206,9 +212,18 @@ pub struct BenchReport {
     pub narrow_queries_per_window: f64,
     pub internal_evaluations_per_window: f64,
     pub layer_events_per_window: f64,
+    /// Contact islands per window, and the largest island's share of the
+    /// layer events (what bounds running islands in parallel).
+    pub islands_per_window: f64,
+    pub largest_island_share: Option<f64>,
     /// Active stencils and their deepest layer after the last window.
     pub end_active_stencils: u64,
     pub end_max_depth: u32,
+    /// The contact islands of the active stencils after the last window, by
+    /// size: entry `k` counts the islands of `2^k ..= 2^(k+1) - 1` stencils;
+    /// and the largest island's stencils.
+    pub end_island_sizes: Vec<u64>,
+    pub end_largest_island: u64,
     /// State hash after the last window, and whether every run agreed on it.
     pub state_hash: String,
     pub deterministic: bool,
@@ -351,8 +366,12 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         narrow_queries_per_window: 0.0,
         internal_evaluations_per_window: 0.0,
         layer_events_per_window: 0.0,
+        islands_per_window: 0.0,
+        largest_island_share: None,
         end_active_stencils: 0,
         end_max_depth: 0,
+        end_island_sizes: Vec::new(),
+        end_largest_island: 0,
         state_hash: String::new(),
         deterministic: true,
         peak_rss_bytes: None,
@@ -656,6 +675,8 @@ fn measure<E: Executor>(
             w.internal_stencil_evaluations * (u64::from(w.rollbacks) + 1);
         s.internal_evaluations += w.internal_stencil_evaluations;
         s.layer_events += w.layer_events;
+        s.islands += w.islands;
+        s.largest_island_layer_events += w.largest_island_layer_events;
         s.rollbacks += u64::from(w.rollbacks);
         s.active_stencils = w.active_stencils;
         s.max_depth = w.max_depth;
@@ -663,6 +684,11 @@ fn measure<E: Executor>(
     s.own.wall = clock.elapsed().as_secs_f64();
     s.narrow_queries = engine.totals.narrow_queries - queries_before;
     s.state_hash = engine.state_hash();
+    let w = &engine.world;
+    let islands = weft_sim::islands::Islands::build(w.layers.stencils.keys(), &w.inv_mass);
+    s.island_sizes = (0..islands.len())
+        .map(|k| islands.stencils_of(k).len() as u64)
+        .collect();
     let traffic = engine.executor().traffic();
     s.own.messages = traffic.messages - traffic_before.messages;
     s.own.bytes = traffic.bytes - traffic_before.bytes;
@@ -691,8 +717,19 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
     r.narrow_queries_per_window = first.narrow_queries as f64 / windows;
     r.internal_evaluations_per_window = first.internal_evaluations as f64 / windows;
     r.layer_events_per_window = first.layer_events as f64 / windows;
+    r.islands_per_window = first.islands as f64 / windows;
+    r.largest_island_share = (first.layer_events > 0)
+        .then(|| first.largest_island_layer_events as f64 / first.layer_events as f64);
     r.end_active_stencils = first.active_stencils;
     r.end_max_depth = first.max_depth;
+    for &size in &first.island_sizes {
+        let bucket = size.ilog2() as usize;
+        if r.end_island_sizes.len() <= bucket {
+            r.end_island_sizes.resize(bucket + 1, 0);
+        }
+        r.end_island_sizes[bucket] += 1;
+    }
+    r.end_largest_island = first.island_sizes.iter().copied().max().unwrap_or(0);
     r.state_hash = first.state_hash.clone();
     r.deterministic = all.iter().flat_map(|(_, s)| s).all(|s| {
         s.state_hash == first.state_hash
@@ -817,6 +854,16 @@ fn table(r: &BenchReport) -> String {
         r.narrow_queries_per_window,
         r.internal_evaluations_per_window,
         r.layer_events_per_window
+    );
+    let _ = writeln!(
+        s,
+        "islands     {:.1} contact islands per window; the largest holds {} of the layer events; \
+         at the end, islands of 1, 2-3, 4-7, ... stencils: {:?} (largest {})",
+        r.islands_per_window,
+        r.largest_island_share
+            .map_or("none".to_string(), |f| format!("{:.1} %", 100.0 * f)),
+        r.end_island_sizes,
+        r.end_largest_island
     );
     let _ = writeln!(
         s,

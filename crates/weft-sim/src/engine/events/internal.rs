@@ -1,0 +1,191 @@
+//! An internal tick: stretch, bend, damping, gravity and the scripts, with
+//! the penalty layers that fire at the same tick folded after them.
+
+use std::time::Instant;
+
+use glam::DVec3;
+
+use super::island::SegmentOutput;
+use super::{budget_error, VERTEX_RUN};
+use crate::clock::Tick;
+use crate::engine::Engine;
+use crate::error::SimError;
+use crate::executor::{split_chunks, Executor};
+use crate::trace;
+use crate::world::World;
+
+impl<E: Executor> Engine<E> {
+    /// The internal batch at tick `t`: positions at `t`, the internal forces
+    /// (over ranks: Algorithm 1, boundary partitions first, their slots sent
+    /// to the ranks that fold them while the interior ones are evaluated),
+    /// each vertex's ordered fold of its internal slots and then of its
+    /// island's kicks at `t` (`islands`, in island order: each vertex's
+    /// terms in (layer, key) order, where the global schedule folds them),
+    /// new velocities, and the new states with their breakpoints.
+    pub(super) fn internal_tick(
+        &mut self,
+        t: Tick,
+        islands: &[SegmentOutput],
+        counts: &mut super::PassCounts,
+    ) -> Result<(), SimError> {
+        let _span = trace::span("internal tick");
+        let clock = Instant::now();
+        counts.internal_events += 1;
+        let w = &self.world;
+        let ws = &mut self.ws;
+        // Per-vertex stages run on the executor in fixed runs of vertices;
+        // each writes only its own vertices' entries.
+        self.exec
+            .for_each_chunk(&mut ws.xt, &ws.vertex_runs, &|k, run| {
+                for (j, p) in run.iter_mut().enumerate() {
+                    *p = Self::pos_at(w, k * VERTEX_RUN + j, t);
+                }
+            });
+        let share = self.share.as_ref();
+        let (exec, bounds, xt) = (&self.exec, &ws.bounds, &ws.xt);
+        match share {
+            None => w
+                .internal
+                .evaluate(exec, bounds, xt, &w.v, &mut ws.out, None),
+            Some(share) => {
+                let boundary = Some(&share.boundary_partition[..]);
+                w.internal
+                    .evaluate(exec, bounds, xt, &w.v, &mut ws.out, boundary);
+                share.exchange_slots(exec, &mut ws.out, &mut |out| {
+                    let interior = Some(&share.interior_partition[..]);
+                    w.internal.evaluate(exec, bounds, xt, &w.v, out, interior);
+                })?;
+            }
+        }
+        let h = w.lattice.h_el();
+        let out = &ws.out;
+        let owned = |i: usize| share.is_none_or(|s| s.owns(i));
+        self.exec
+            .for_each_chunk(&mut ws.acc, &ws.vertex_runs, &|k, run| {
+                for (j, a) in run.iter_mut().enumerate() {
+                    let i = k * VERTEX_RUN + j;
+                    if owned(i) && w.inv_mass[i] > 0.0 {
+                        let g = w.internal.fold(i, out) - w.gravity * w.mass[i];
+                        *a = g * -h;
+                    }
+                }
+            });
+        for island in islands {
+            for &(i, impulse) in &island.at_internal {
+                if owned(i as usize) {
+                    ws.acc[i as usize] += impulse;
+                }
+            }
+        }
+        counts.internal_seconds += clock.elapsed().as_secs_f64();
+        // New velocities; over ranks each rank advances the vertices it owns
+        // and the new velocities are all-gathered.
+        let tsec = w.lattice.seconds(t);
+        let (xt, acc) = (&ws.xt, &ws.acc);
+        self.exec
+            .for_each_chunk(&mut ws.v_new, &ws.vertex_runs, &|k, run| {
+                for (j, v) in run.iter_mut().enumerate() {
+                    let i = k * VERTEX_RUN + j;
+                    if owned(i) {
+                        *v = new_velocity(w, i, xt[i], acc[i], tsec, h);
+                    }
+                }
+            });
+        if let Some(share) = share {
+            share.exchange_velocities(&self.exec, &mut ws.v_new)?;
+        }
+        self.apply_internal(t)
+    }
+
+    /// The end of an internal batch at tick `t`, on the executor in runs of
+    /// vertices: each vertex whose velocity changed takes its new velocity
+    /// (`ws.v_new`) and its position at `t`, and gets a breakpoint. As on one
+    /// thread in vertex order, a non-finite new state stops the batch at the
+    /// first such vertex: the vertices before it are applied, it and the
+    /// later ones are not.
+    fn apply_internal(&mut self, t: Tick) -> Result<(), SimError> {
+        let ws = &mut self.ws;
+        let w = &self.world;
+        let n = w.x.len();
+        let runs = ws.vertex_runs.len().saturating_sub(1);
+        let (xt, v_new) = (&ws.xt, &ws.v_new);
+        let bounds = &ws.vertex_runs;
+        let bad = self
+            .exec
+            .map(runs, &|k| {
+                (bounds[k]..bounds[k + 1])
+                    .find(|&i| v_new[i] != w.v[i] && !(xt[i].is_finite() && v_new[i].is_finite()))
+            })
+            .into_iter()
+            .flatten()
+            .next();
+        let limit = bad.unwrap_or(n);
+        struct Run<'a> {
+            start: usize,
+            x: &'a mut [DVec3],
+            v: &'a mut [DVec3],
+            tau: &'a mut [Tick],
+            traj: crate::trajectory::TrajectoryRun<'a>,
+            added: usize,
+        }
+        let world = &mut self.world;
+        let mut x_runs = split_chunks(&mut world.x, bounds).into_iter();
+        let mut v_runs = split_chunks(&mut world.v, bounds).into_iter();
+        let mut tau_runs = split_chunks(&mut world.tau, bounds).into_iter();
+        let mut apply_runs: Vec<Run<'_>> = self
+            .traj
+            .runs(bounds)
+            .into_iter()
+            .enumerate()
+            .map(|(k, traj)| Run {
+                start: bounds[k],
+                x: x_runs.next().expect("one per run").1,
+                v: v_runs.next().expect("one per run").1,
+                tau: tau_runs.next().expect("one per run").1,
+                traj,
+                added: 0,
+            })
+            .collect();
+        let one_each: Vec<usize> = (0..=apply_runs.len()).collect();
+        self.exec
+            .for_each_chunk(&mut apply_runs, &one_each, &|_, chunk| {
+                for r in chunk {
+                    let end = r.x.len().min(limit.saturating_sub(r.start));
+                    for j in 0..end {
+                        let i = r.start + j;
+                        if v_new[i] != r.v[j] {
+                            r.x[j] = xt[i];
+                            r.tau[j] = t;
+                            r.v[j] = v_new[i];
+                            r.added += usize::from(r.traj.record(j, t, xt[i]));
+                        }
+                    }
+                }
+            });
+        let added = apply_runs.iter().map(|r| r.added).sum();
+        drop(apply_runs);
+        let world = &self.world;
+        self.traj
+            .add_recorded(added)
+            .map_err(|e| budget_error(world, self.traj.start(), e))?;
+        if let Some(i) = bad {
+            return Err(SimError::NonFinite {
+                place: world.place(i as u32),
+                vertex: i as u32,
+                time: world.lattice.seconds(t),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Vertex `i`'s velocity after the internal batch at `tsec` in which it
+/// received the impulse `impulse` (internal forces, then normal and clamped
+/// friction kicks); `x` is its position at the batch. A scripted vertex
+/// follows the chord of its script.
+fn new_velocity(w: &World, i: usize, x: DVec3, impulse: DVec3, tsec: f64, h: f64) -> DVec3 {
+    match w.script_of[i] {
+        Some((s, k)) => w.scripts[s as usize].chord_velocity(k as usize, x, tsec, h),
+        None => w.v[i] + impulse * w.inv_mass[i],
+    }
+}

@@ -1,0 +1,611 @@
+//! The penalty-layer batches of one contact island (`crate::islands`)
+//! between two internal ticks.
+//!
+//! An island holds its dynamic vertices' state (`x`, `v`, `tau`) while it
+//! runs a segment of ticks, and every batch reads and writes only those
+//! vertices (kinematic ones are read from the world; no kick moves them).
+//! It runs its own schedule restricted to itself: at each tick where one of
+//! its layers fires, in (tick, layer, key) order, the same batch as the
+//! global schedule's — Jacobi reads of the velocities, the asleep stencils
+//! skipped, the distance-bound skip, kicks summed per vertex in (layer, key)
+//! order with the friction clamp, only vertices whose velocity changed get a
+//! breakpoint — so every vertex ends with exactly the global schedule's
+//! bits. At the internal tick that ends the segment it computes its layers'
+//! kicks and hands them, in fold order, to the internal tick, which folds
+//! them after the internal forces exactly where the global schedule did.
+
+use std::time::Instant;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use weft_core::{StencilKey, StencilKind, NONE};
+use weft_geom::distance::{stencil_closest, Closest};
+
+use crate::clock::Tick;
+use crate::dormancy::Dormancy;
+use crate::executor::Executor;
+use crate::islands::Islands;
+use crate::layers::{penalty_kick, FrictionClamp, PenaltyImpulse};
+use crate::trace;
+use crate::world::World;
+
+/// The last exact evaluation of a stencil in this pass: its distance and its
+/// vertices' positions (what [`distance_lower_bound`] starts from).
+type Anchor = (f64, [DVec3; 4]);
+
+/// What the penalty scan decided for an awake stencil (stencils certainly
+/// outside every firing layer without room to sleep leave no verdict).
+#[derive(Clone, Copy, Debug)]
+enum Verdict {
+    /// Certified outside `eta_1` until this tick or a velocity change.
+    Sleep(Tick),
+    /// Evaluated exactly at these positions.
+    Near(Closest, [DVec3; 4]),
+}
+
+/// Lower bound of a stencil's distance at positions `x`, given its exact
+/// distance `d0` at earlier positions `x0` of the same pass.
+///
+/// Each point of a primitive is a fixed convex combination of its vertices, so
+/// it moved by at most the largest of their displacements; the closest pair at
+/// `x` was therefore at least `d0 - move_a - move_b` apart. The subtracted
+/// slack covers the rounding of `d0` and of the displacement norms (a few ulps
+/// of the coordinates, bounded generously by `2^-40 (1 + max |coordinate|)`).
+fn distance_lower_bound(kind: StencilKind, d0: f64, x0: &[DVec3; 4], x: &[DVec3; 4]) -> f64 {
+    let split = split_of(kind);
+    let moved =
+        |r: std::ops::Range<usize>| r.map(|j| (x[j] - x0[j]).length()).fold(0.0f64, f64::max);
+    let scale = x
+        .iter()
+        .chain(x0)
+        .fold(0.0f64, |m, p| m.max(p.abs().max_element()));
+    d0 - moved(0..split) - moved(split..4) - (1.0 + scale) * f64::powi(2.0, -40)
+}
+
+/// The stencil's vertices `0..split` are one primitive, `split..4` the other.
+fn split_of(kind: StencilKind) -> usize {
+    match kind {
+        StencilKind::VertexFace => 1,
+        StencilKind::EdgeEdge => 2,
+    }
+}
+
+/// How long a stencil whose distance is at least `lower` at tick `t` (a
+/// lower bound of the computed distance, see [`distance_lower_bound`]) stays
+/// outside `eta_1`, the outermost layer, if its vertices keep their current
+/// velocities `v`: returns the first tick it may not, and the room
+/// `lower - eta_1` less a rounding slack (no sleep unless positive).
+///
+/// With velocities fixed each vertex moves by exactly `|v| (t' - t) q` (its
+/// position is `x + v (t' - tau) q`), so the anchor-based lower bound at `t'`
+/// is at least `lower - (s_a + s_b) (t' - t) q`, `s_a`, `s_b` the largest
+/// speeds on each side. The extra slack `2^-40 (1 + max |coordinate|)`
+/// covers the rounding of the speeds and of the later positions, as in
+/// [`distance_lower_bound`].
+fn sleep(
+    kind: StencilKind,
+    lower: f64,
+    eta_1: f64,
+    x: &[DVec3; 4],
+    v: &[DVec3; 4],
+    quantum: f64,
+    t: Tick,
+) -> (Tick, f64) {
+    let split = split_of(kind);
+    let scale = x.iter().fold(0.0f64, |m, p| m.max(p.abs().max_element()));
+    let room = lower - eta_1 - (1.0 + scale) * f64::powi(2.0, -40);
+    if !(room > 0.0) {
+        return (t, room);
+    }
+    let speed = |r: std::ops::Range<usize>| r.map(|j| v[j].length()).fold(0.0f64, f64::max);
+    let s = (speed(0..split) + speed(split..4)) * quantum;
+    let ticks = room / s; // +inf when nothing moves
+    let awake_at = if ticks >= (Tick::MAX - t) as f64 {
+        Tick::MAX
+    } else if ticks >= 1.0 {
+        t + ticks.floor() as Tick
+    } else {
+        return (t, 0.0); // would wake at once: not worth it
+    };
+    (awake_at, room)
+}
+
+/// Below this many stencils in a batch its scan and kicks run inline:
+/// handing out tasks would cost more than it saves (the same bits).
+const PARALLEL_MIN_STENCILS: usize = 256;
+
+/// Stencils per task of a batch's scan and kicks on the executor.
+const PENALTY_RUN: usize = 128;
+
+/// The layer constants `(eta_l, k_l, h_l)` of the pass and what every
+/// island reads of the world (nothing it writes).
+pub(super) struct Shared<'a> {
+    pub world: &'a World,
+    pub layer_consts: &'a [(f64, f64, Tick)],
+    /// Evaluate every layer event exactly (no sleeping, no skip).
+    pub exhaustive: bool,
+}
+
+impl Shared<'_> {
+    /// Layer `l`'s constants.
+    fn layer(&self, l: u32) -> (f64, f64, Tick) {
+        self.layer_consts[l as usize - 1]
+    }
+}
+
+/// One stencil of an island.
+#[derive(Clone, Copy, Debug)]
+struct Member {
+    key: StencilKey,
+    depth: u32,
+    /// Its vertices' indices in the island (`NONE`: kinematic).
+    local: [u32; 4],
+    /// Its friction coefficient.
+    mu: f64,
+}
+
+/// What an island's segment changed and saw: applied by the engine in
+/// island order (the islands' vertices are disjoint, so the order does not
+/// change any bit), and over ranks sent to every rank.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub(super) struct SegmentOutput {
+    /// The new `(x, v, tau)` of every island vertex the segment moved.
+    pub moved: Vec<(u32, DVec3, DVec3, Tick)>,
+    /// Breakpoints `(vertex, tick, position)`, each vertex's in time order.
+    pub breakpoints: Vec<(u32, Tick, DVec3)>,
+    /// The island's impulses at the internal tick ending the segment,
+    /// `(vertex, impulse)` in fold order: each vertex's normal and clamped
+    /// friction impulses in (layer, key) order, as separate terms.
+    pub at_internal: Vec<(u32, DVec3)>,
+    /// Exact evaluations, kicks and the smallest distance evaluated.
+    pub evaluations: u64,
+    pub kicks: u64,
+    pub min_separation: f64,
+    /// The tick and vertex where a value became non-finite: the island
+    /// stopped there, before writing it.
+    pub blew_up: Option<(Tick, u32)>,
+    /// Wall seconds the segment took (the island's cost for the next one).
+    pub seconds: f64,
+}
+
+/// A contact island's stencils, its vertices' state while it runs, and
+/// what persists over the pass (dormancy, anchors).
+#[derive(Debug)]
+pub(super) struct Island {
+    /// Its dynamic vertices (global ids, ascending) and, per vertex, the
+    /// inverse mass.
+    vertices: Vec<u32>,
+    inv_mass: Vec<f64>,
+    members: Vec<Member>,
+    max_depth: u32,
+    dormancy: Dormancy,
+    anchors: Vec<Option<Anchor>>,
+    // The vertices' state during a segment.
+    x: Vec<DVec3>,
+    v: Vec<DVec3>,
+    tau: Vec<Tick>,
+    moved: Vec<bool>,
+    // A batch's scratch.
+    acc: Vec<DVec3>,
+    is_touched: Vec<bool>,
+    touched: Vec<u32>,
+    friction: FrictionClamp,
+    scan: Vec<u32>,
+    verdicts: Vec<(u32, Verdict)>,
+    hits: Vec<(u32, Closest)>,
+    kick_items: Vec<(u32, u32)>,
+    kicks: Vec<Option<PenaltyImpulse>>,
+}
+
+impl Island {
+    /// Island `k` of `islands` over the pass's `active` stencils (key,
+    /// depth), all awake.
+    pub(super) fn new(
+        islands: &Islands,
+        k: usize,
+        active: &[(StencilKey, u32)],
+        w: &World,
+    ) -> Self {
+        let vertices = islands.vertices_of(k).to_vec();
+        let local = |i: u32| vertices.binary_search(&i).map_or(NONE, |j| j as u32);
+        let members: Vec<Member> = islands
+            .stencils_of(k)
+            .iter()
+            .map(|&a| {
+                let (key, depth) = active[a as usize];
+                Member {
+                    key,
+                    depth,
+                    local: key.v.map(local),
+                    mu: w.stencil_friction(&key),
+                }
+            })
+            .collect();
+        let n = vertices.len();
+        let mut dormancy = Dormancy::default();
+        dormancy.reset(&members.iter().map(|m| m.local).collect::<Vec<_>>(), n);
+        Island {
+            inv_mass: vertices.iter().map(|&i| w.inv_mass[i as usize]).collect(),
+            max_depth: members.iter().map(|m| m.depth).max().unwrap_or(0),
+            anchors: vec![None; members.len()],
+            x: vec![DVec3::ZERO; n],
+            v: vec![DVec3::ZERO; n],
+            tau: vec![0; n],
+            moved: vec![false; n],
+            acc: vec![DVec3::ZERO; n],
+            is_touched: vec![false; n],
+            friction: FrictionClamp::new(n),
+            vertices,
+            members,
+            dormancy,
+            touched: Vec::new(),
+            scan: Vec::new(),
+            verdicts: Vec::new(),
+            hits: Vec::new(),
+            kick_items: Vec::new(),
+            kicks: Vec::new(),
+        }
+    }
+
+    /// Runs the island's penalty-only batches at the ticks of `[s, e)` (no
+    /// internal tick lies in it) and, when `internal_at_e`, computes its
+    /// kicks at the internal tick `e`. The world holds the island's vertices'
+    /// state at `s` and is not written.
+    pub(super) fn run_segment<E: Executor>(
+        &mut self,
+        exec: &E,
+        sh: &Shared<'_>,
+        (s, e): (Tick, Tick),
+        internal_at_e: bool,
+    ) -> SegmentOutput {
+        let clock = Instant::now();
+        let mut out = SegmentOutput {
+            min_separation: f64::INFINITY,
+            ..Default::default()
+        };
+        // Nothing awake and nothing due to wake before the segment's last
+        // batch: no batch of the segment reads a stencil, so none kicks.
+        let last = if internal_at_e {
+            e
+        } else {
+            e.saturating_sub(1)
+        };
+        let idle = self.dormancy.awake().is_empty()
+            && self.dormancy.next_due().is_none_or(|due| due > last);
+        if !idle {
+            self.gather(sh.world);
+            self.run_ticks(exec, sh, s, e, &mut out);
+            if internal_at_e && out.blew_up.is_none() {
+                let firing: Vec<u32> = (1..=self.max_depth)
+                    .filter(|&l| e % sh.layer(l).2 == 0)
+                    .collect();
+                if !firing.is_empty() {
+                    // (It applies nothing, so it cannot blow up.)
+                    let _ = self.batch(exec, sh, e, &firing, true, &mut out);
+                }
+            }
+            for j in 0..self.vertices.len() {
+                if std::mem::take(&mut self.moved[j]) {
+                    let i = self.vertices[j];
+                    out.moved.push((i, self.x[j], self.v[j], self.tau[j]));
+                }
+            }
+        }
+        if internal_at_e {
+            // The internal tick changes every velocity: every stencil wakes.
+            self.dormancy.wake_all();
+        }
+        out.seconds = clock.elapsed().as_secs_f64();
+        out
+    }
+
+    /// Copies the island's vertices' state from the world.
+    fn gather(&mut self, w: &World) {
+        for (j, &i) in self.vertices.iter().enumerate() {
+            let i = i as usize;
+            (self.x[j], self.v[j], self.tau[j]) = (w.x[i], w.v[i], w.tau[i]);
+        }
+    }
+
+    /// The penalty-only batches at the ticks of `[s, e)` where one of the
+    /// island's layers fires, in tick order, until a value blows up.
+    fn run_ticks<E: Executor>(
+        &mut self,
+        exec: &E,
+        sh: &Shared<'_>,
+        s: Tick,
+        e: Tick,
+        out: &mut SegmentOutput,
+    ) {
+        let depth = self.max_depth as usize;
+        // The next tick of each layer at or after `from` (clocks tick at
+        // n h_l, n ≥ 1).
+        let at_or_after = |from: Tick, p: Tick| from.max(1).div_ceil(p) * p;
+        let mut next: Vec<Tick> = (1..=depth as u32)
+            .map(|l| at_or_after(s, sh.layer(l).2))
+            .collect();
+        let mut firing: Vec<u32> = Vec::with_capacity(depth);
+        while let Some(t) = next.iter().copied().min().filter(|&t| t < e) {
+            if self.dormancy.awake().is_empty() {
+                // Every stencil asleep: no batch reads one before the first
+                // wake tick; go straight to it.
+                match self.dormancy.next_due() {
+                    Some(due) if due > t && due < e => {
+                        for (l, n) in next.iter_mut().enumerate() {
+                            *n = at_or_after(due, sh.layer(l as u32 + 1).2);
+                        }
+                        continue;
+                    }
+                    Some(due) if due <= t => {}
+                    _ => break,
+                }
+            }
+            firing.clear();
+            for (l, n) in next.iter_mut().enumerate() {
+                if *n == t {
+                    firing.push(l as u32 + 1);
+                    *n += sh.layer(l as u32 + 1).2;
+                }
+            }
+            if let Err(j) = self.batch(exec, sh, t, &firing, false, out) {
+                out.blew_up = Some((t, self.vertices[j as usize]));
+                return;
+            }
+        }
+    }
+
+    /// Position of island vertex `j` (or of kinematic vertex `i`, from the
+    /// world) at tick `t`, by the engine's drift `x + (t - tau) q v`.
+    #[inline]
+    fn position(&self, w: &World, local: u32, i: u32, t: Tick) -> DVec3 {
+        let q = w.lattice.quantum;
+        if local == NONE {
+            let i = i as usize;
+            w.x[i] + w.v[i] * ((t - w.tau[i]) as f64 * q)
+        } else {
+            let j = local as usize;
+            self.x[j] + self.v[j] * ((t - self.tau[j]) as f64 * q)
+        }
+    }
+
+    /// Velocity of a stencil vertex (the island's, or a kinematic one's).
+    #[inline]
+    fn velocity(&self, w: &World, local: u32, i: u32) -> DVec3 {
+        if local == NONE {
+            w.v[i as usize]
+        } else {
+            self.v[local as usize]
+        }
+    }
+
+    /// One batch at tick `t` of the layers `firing` (ascending), its
+    /// figures added to `out`. A penalty-only batch applies its kicks to the
+    /// island's vertices (breakpoints to `out`) and returns the island
+    /// vertex whose new state is not finite, if any (it and the later ones
+    /// are not applied). At an internal tick (`internal`) the kicks go to
+    /// `out.at_internal` in fold order instead.
+    fn batch<E: Executor>(
+        &mut self,
+        exec: &E,
+        sh: &Shared<'_>,
+        t: Tick,
+        firing: &[u32],
+        internal: bool,
+        out: &mut SegmentOutput,
+    ) -> Result<(), u32> {
+        let w = sh.world;
+        let first = firing[0];
+        let eta_first = sh.layer(first).0;
+        // Phase 1: the closest-point data of the awake stencils of the
+        // outermost firing layer (which holds every stencil firing now, and
+        // whose eta is the largest, so a stencil certainly outside it is
+        // outside every firing layer), in key order.
+        self.dormancy.wake_due(t);
+        self.scan.clear();
+        let members = &self.members;
+        self.scan.extend(
+            (self.dormancy.awake().iter())
+                .copied()
+                .filter(|&a| members[a as usize].depth >= first),
+        );
+        self.scan.sort_unstable();
+        let mut verdicts = std::mem::take(&mut self.verdicts);
+        verdicts.clear();
+        let this = &*self;
+        let scan = |run: &[u32], verdicts: &mut Vec<(u32, Verdict)>| {
+            for &a in run {
+                let m = &this.members[a as usize];
+                let x: [DVec3; 4] =
+                    std::array::from_fn(|j| this.position(w, m.local[j], m.key.v[j], t));
+                let lower = this.anchors[a as usize]
+                    .as_ref()
+                    .map_or(f64::NEG_INFINITY, |(d0, x0)| {
+                        distance_lower_bound(m.key.kind, *d0, x0, &x)
+                    });
+                // Certainly outside every firing layer: its kicks are zero,
+                // so skipping the evaluation leaves the same bits.
+                if lower >= eta_first && !sh.exhaustive {
+                    let v = std::array::from_fn(|j| this.velocity(w, m.local[j], m.key.v[j]));
+                    let (awake_at, room) = sleep(
+                        m.key.kind,
+                        lower,
+                        w.schedule.eta_1,
+                        &x,
+                        &v,
+                        w.lattice.quantum,
+                        t,
+                    );
+                    if room > 0.0 {
+                        verdicts.push((a, Verdict::Sleep(awake_at)));
+                    }
+                } else {
+                    verdicts.push((a, Verdict::Near(stencil_closest(m.key.kind, &x), x)));
+                }
+            }
+        };
+        let list = &self.scan;
+        if list.len() >= PARALLEL_MIN_STENCILS {
+            // A big batch (a giant island): its scan on the executor's
+            // threads, in runs (Algorithm 4's node-level sharing).
+            let _span = trace::span_with("penalty closest", "stencils", list.len() as u64);
+            let parts = exec.map(list.len().div_ceil(PENALTY_RUN), &|r| {
+                let mut part = Vec::new();
+                scan(
+                    &list[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(list.len())],
+                    &mut part,
+                );
+                part
+            });
+            verdicts.extend(parts.into_iter().flatten());
+        } else {
+            scan(list, &mut verdicts);
+        }
+        // Apply the verdicts; only the evaluated stencils (hits) can kick.
+        // At an internal tick every stencil wakes right after, so its sleep
+        // verdicts have no effect.
+        self.hits.clear();
+        for &(a, verdict) in &verdicts {
+            match verdict {
+                Verdict::Sleep(until) => {
+                    if !internal {
+                        self.dormancy.sleep(a, until);
+                    }
+                }
+                Verdict::Near(c, x) => {
+                    out.evaluations += 1;
+                    out.min_separation = out.min_separation.min(c.d);
+                    self.anchors[a as usize] = Some((c.d, x));
+                    self.hits.push((a, c));
+                }
+            }
+        }
+        self.verdicts = verdicts;
+        self.dormancy.drop_sleepers();
+        // Phase 2: the kicks of the stencils inside their layer, computed
+        // independently (they read the velocities at the start of the
+        // batch), in (layer, key) order.
+        self.kick_items.clear();
+        for &l in firing {
+            let eta_l = sh.layer(l).0;
+            for (h, (a, c)) in self.hits.iter().enumerate() {
+                if self.members[*a as usize].depth >= l && c.d < eta_l {
+                    self.kick_items.push((l, h as u32)); // else a zero kick (NaN too)
+                }
+            }
+        }
+        let mut kicks = std::mem::take(&mut self.kicks);
+        kicks.clear();
+        let this = &*self;
+        let kick_of = |&(l, h): &(u32, u32)| {
+            let (a, c) = &this.hits[h as usize];
+            let m = &this.members[*a as usize];
+            let (eta_l, k_l, step) = sh.layer(l);
+            let v = std::array::from_fn(|j| this.velocity(w, m.local[j], m.key.v[j]));
+            let inv = m.local.map(|j| {
+                if j == NONE {
+                    0.0
+                } else {
+                    this.inv_mass[j as usize]
+                }
+            });
+            penalty_kick(eta_l, k_l, w.lattice.seconds(step), c, &v, &inv, m.mu)
+        };
+        let items = &self.kick_items;
+        if items.len() >= PARALLEL_MIN_STENCILS {
+            let _span = trace::span_with("penalty kicks", "stencils", items.len() as u64);
+            let parts = exec.map(items.len().div_ceil(PENALTY_RUN), &|r| {
+                let run = &items[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(items.len())];
+                run.iter().map(kick_of).collect::<Vec<_>>()
+            });
+            kicks.extend(parts.into_iter().flatten());
+        } else {
+            kicks.extend(items.iter().map(kick_of));
+        }
+        // Fold in (layer, key) order: the friction clamp's sums first, then
+        // each kick with its friction scaled as a whole (`FrictionClamp`).
+        let kicked: Vec<(usize, &PenaltyImpulse)> = (self.kick_items.iter().zip(&kicks))
+            .filter_map(|(&(_, h), k)| Some((self.hits[h as usize].0 as usize, k.as_ref()?)))
+            .collect();
+        for &(a, k) in &kicked {
+            if self.members[a].mu > 0.0 {
+                self.friction.add(&self.members[a].local, k);
+            }
+        }
+        for &(a, k) in &kicked {
+            let m = &self.members[a];
+            let rubs = m.mu > 0.0;
+            let s = if rubs {
+                self.friction.scale(&m.local, k)
+            } else {
+                0.0
+            };
+            for j in 0..4 {
+                let local = m.local[j];
+                if local == NONE {
+                    continue;
+                }
+                let friction = k.friction[j] * s;
+                if internal {
+                    out.at_internal.push((m.key.v[j], k.normal[j]));
+                    if rubs {
+                        out.at_internal.push((m.key.v[j], friction));
+                    }
+                } else {
+                    let jl = local as usize;
+                    self.acc[jl] += k.normal[j];
+                    if rubs {
+                        self.acc[jl] += friction;
+                    }
+                    if !self.is_touched[jl] {
+                        self.is_touched[jl] = true;
+                        self.touched.push(local);
+                    }
+                }
+            }
+        }
+        for &(a, _) in &kicked {
+            if self.members[a].mu > 0.0 {
+                self.friction.clear(&self.members[a].local);
+            }
+        }
+        out.kicks += kicked.len() as u64;
+        drop(kicked);
+        self.kicks = kicks;
+        if internal {
+            Ok(())
+        } else {
+            self.apply(w, t, out)
+        }
+    }
+
+    /// The end of a penalty-only batch at tick `t`: its touched vertices in
+    /// order take their new velocity and their position at `t`, and get a
+    /// breakpoint where the velocity changed. The first vertex whose new
+    /// state is not finite stops it (returned; it and the later ones are
+    /// not applied, and the batch's impulses are forgotten).
+    fn apply(&mut self, w: &World, t: Tick, out: &mut SegmentOutput) -> Result<(), u32> {
+        let mut result = Ok(());
+        for &j in &self.touched {
+            let jl = j as usize;
+            let impulse = std::mem::take(&mut self.acc[jl]);
+            self.is_touched[jl] = false;
+            if result.is_err() {
+                continue;
+            }
+            let v_new = self.v[jl] + impulse * self.inv_mass[jl];
+            if v_new != self.v[jl] {
+                let x = self.position(w, j, self.vertices[jl], t);
+                if !(x.is_finite() && v_new.is_finite()) {
+                    result = Err(j);
+                    continue;
+                }
+                (self.x[jl], self.v[jl], self.tau[jl]) = (x, v_new, t);
+                self.moved[jl] = true;
+                self.dormancy.wake_vertex(jl);
+                out.breakpoints.push((self.vertices[jl], t, x));
+            }
+        }
+        self.touched.clear();
+        result
+    }
+}

@@ -1,0 +1,354 @@
+//! The events of one pass (`acm-spec.md` §2): every clock's batches in time
+//! order over `[T0, T1)`, recording trajectory breakpoints.
+//!
+//! A batch at tick `t` holds every clock that fires at `t`: the internal clock
+//! (stretch, bend, damping, gravity, scripts) and each active layer `l` with
+//! `t % h_l == 0`. All forces read positions at `t` and the velocities at the
+//! start of the batch (Jacobi semantics for damping and friction); each vertex
+//! sums its impulses in (clock, stencil key) order; only vertices whose velocity
+//! changes are drifted to `t` and get a breakpoint, so zero kicks leave no trace.
+//!
+//! The pass runs as **segments** between consecutive internal ticks. In a
+//! segment only penalty layers fire, and their work splits into contact
+//! islands ([`crate::islands`]) that share no dynamic vertex: each island
+//! runs its own batches ([`island`]), all islands at once on the executor
+//! (over ranks: placed largest first on the least-loaded rank, their results
+//! handed to every rank in one collective). Then the internal tick
+//! ([`internal`]) folds the internal forces and, after them, each island's
+//! kicks at that tick. Every vertex folds the same kicks in the same order as
+//! one global schedule of batches would: the same bits.
+
+mod internal;
+mod island;
+
+use std::sync::Mutex;
+
+use glam::DVec3;
+use weft_core::StencilKey;
+
+use super::Engine;
+use crate::clock::Tick;
+use crate::error::SimError;
+use crate::executor::Executor;
+use crate::islands::Islands;
+use crate::trace;
+use crate::world::World;
+use island::{Island, SegmentOutput, Shared};
+
+/// Vertices per task of the per-vertex stages of an internal tick.
+const VERTEX_RUN: usize = 2048;
+
+/// Counters of one pass over a window.
+#[derive(Debug, Default)]
+pub(super) struct PassCounts {
+    pub(super) internal_events: u64,
+    pub(super) layer_events: u64,
+    pub(super) layer_evaluations: u64,
+    pub(super) layer_kicks: u64,
+    pub(super) islands: u64,
+    pub(super) largest_island_layer_events: u64,
+    pub(super) min_separation: f64,
+    /// Wall seconds of the internal-force part of internal ticks.
+    pub(super) internal_seconds: f64,
+    /// The pass ended early because a value became non-finite.
+    pub(super) truncated: Option<SimError>,
+    /// The pass stopped early because the engine was interrupted.
+    pub(super) interrupted: Option<SimError>,
+}
+
+/// Scratch memory reused across windows.
+#[derive(Debug, Default)]
+pub(super) struct Workspace {
+    /// Positions at an internal tick, and the internal forces' output slots.
+    xt: Vec<DVec3>,
+    out: Vec<DVec3>,
+    /// Per vertex: an internal tick's impulses (internal forces, then the
+    /// islands' kicks).
+    acc: Vec<DVec3>,
+    bounds: Vec<usize>,
+    /// New velocities of an internal tick.
+    v_new: Vec<DVec3>,
+    /// Bounds of the fixed runs of vertices of the per-vertex stages.
+    vertex_runs: Vec<usize>,
+    /// The pass's contact islands (each locked by the task that runs it).
+    islands: Vec<Mutex<Island>>,
+    /// Each island's cost: its stencils at first, then the seconds its last
+    /// segment took (the same on every rank: they travel with the results).
+    island_cost: Vec<f64>,
+}
+
+impl Workspace {
+    /// Scratch for the world's vertices and internal force slots.
+    pub(super) fn new(world: &World) -> Self {
+        let n = world.num_vertices();
+        Workspace {
+            xt: vec![DVec3::ZERO; n],
+            out: vec![DVec3::ZERO; world.internal.num_slots()],
+            acc: vec![DVec3::ZERO; n],
+            v_new: vec![DVec3::ZERO; n],
+            vertex_runs: (0..=n.div_ceil(VERTEX_RUN))
+                .map(|k| (k * VERTEX_RUN).min(n))
+                .collect(),
+            bounds: world.internal.slot_bounds(),
+            ..Default::default()
+        }
+    }
+}
+
+/// How many ticks of a clock of period `p` fall in `[t0, t1)` (clocks tick
+/// at `n p`, `n ≥ 1`).
+fn ticks_in(t0: Tick, t1: Tick, p: Tick) -> u64 {
+    let upto = |t: Tick| t.saturating_sub(1) / p; // multiples in [1, t)
+    upto(t1) - upto(t0)
+}
+
+/// The first tick of a clock of period `p` at or after `t` (clocks tick at
+/// `n p`, `n ≥ 1`).
+fn tick_at_or_after(t: Tick, p: Tick) -> Tick {
+    t.max(1).div_ceil(p) * p
+}
+
+/// Places items of the given costs on `ranks` ranks, largest first on the
+/// least-loaded rank (ties: the lower index); returns the items largest
+/// first and each one's rank. Depends on the costs only, so every rank that
+/// has the same costs places alike.
+fn largest_first(costs: &[f64], ranks: usize) -> (Vec<u32>, Vec<u32>) {
+    let mut order: Vec<u32> = (0..costs.len() as u32).collect();
+    order.sort_by(|&a, &b| {
+        costs[b as usize]
+            .total_cmp(&costs[a as usize])
+            .then(a.cmp(&b))
+    });
+    let mut load = vec![0.0f64; ranks.max(1)];
+    let owner = order
+        .iter()
+        .map(|&k| {
+            let r = (0..load.len())
+                .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
+                .expect("a rank");
+            load[r] += costs[k as usize];
+            r as u32
+        })
+        .collect();
+    (order, owner)
+}
+
+impl<E: Executor> Engine<E> {
+    /// Runs every event in `[t0, t1)` and drifts all vertices to `t1`,
+    /// recording trajectories.
+    pub(super) fn run_events(&mut self, t0: Tick, t1: Tick) -> Result<PassCounts, SimError> {
+        let mut counts = PassCounts {
+            min_separation: f64::INFINITY,
+            ..Default::default()
+        };
+        self.traj.begin(t0, &self.world.x);
+        let active: Vec<(StencilKey, u32)> = (self.world.layers.stencils.iter())
+            .map(|(k, s)| (*k, s.depth))
+            .collect();
+        let max_depth = active.iter().map(|a| a.1).max().unwrap_or(0);
+        // (eta_l, k_l, h_l) of every layer in use, computed once per pass
+        // (they involve libm::pow).
+        let sched = &self.world.schedule;
+        let layer_consts: Vec<(f64, f64, Tick)> = (1..=max_depth)
+            .map(|l| (sched.eta(l), sched.k(l), sched.step(l)))
+            .collect();
+        self.begin_islands(&active, &layer_consts, (t0, t1), &mut counts);
+        let h_el = self.world.lattice.internal_step();
+        let mut end = t1;
+        let mut s = t0;
+        let mut segments = 0u64;
+        loop {
+            // The segment [s, e) up to the next internal tick (or the
+            // window end), then that internal tick.
+            let b = tick_at_or_after(s, h_el);
+            let e = b.min(t1);
+            let internal = b < t1;
+            if segments == 1 {
+                crate::failpoint::hit("mid-window", self.world.window_index);
+            }
+            if self.interrupted() {
+                counts.interrupted = Some(SimError::Interrupted {
+                    time: self.world.lattice.seconds(t0),
+                });
+                end = s;
+                break;
+            }
+            segments += 1;
+            let outputs = self.run_islands(&layer_consts, (s, e), internal)?;
+            if let Some(blew_up) = self.apply_islands(&outputs, t0, &mut counts)? {
+                // A speculative pass that blew up in an island (typically a
+                // stencil pushed through too few layers): that island
+                // stopped before writing a non-finite value, the others
+                // finished the segment; the pass ends here, and detection
+                // decides whether more layers fix it.
+                counts.truncated = Some(blew_up);
+                end = e;
+                break;
+            }
+            if !internal {
+                break;
+            }
+            match self.internal_tick(b, &outputs, &mut counts) {
+                Ok(()) => {}
+                Err(e @ SimError::NonFinite { .. }) => {
+                    // As above, at the internal tick: the pass ends at `b`,
+                    // before any non-finite value was written.
+                    counts.truncated = Some(e);
+                    end = b;
+                    break;
+                }
+                Err(e) => return Err(e),
+            }
+            s = b + 1;
+        }
+        // Drift everything to the end of the pass (the window end unless the
+        // pass was cut short).
+        let w = &mut self.world;
+        for i in 0..w.x.len() {
+            let p = Self::pos_at(w, i, end);
+            w.x[i] = p;
+            w.tau[i] = end;
+            self.traj
+                .record(i, end, p)
+                .map_err(|e| budget_error(w, t0, e))?;
+        }
+        Ok(counts)
+    }
+
+    /// The pass's contact islands, all awake, and the counts that follow from
+    /// the active set alone: the layer events of the window (each stencil of
+    /// depth `d` at every tick of layers `1..=d`) and the largest island's.
+    fn begin_islands(
+        &mut self,
+        active: &[(StencilKey, u32)],
+        layer_consts: &[(f64, f64, Tick)],
+        (t0, t1): (Tick, Tick),
+        counts: &mut PassCounts,
+    ) {
+        let w = &self.world;
+        let islands = Islands::build(active.iter().map(|a| &a.0), &w.inv_mass);
+        // through[d]: the ticks of layers 1..=d in [t0, t1).
+        let mut through = vec![0u64; layer_consts.len() + 1];
+        for l in 1..through.len() {
+            through[l] = through[l - 1] + ticks_in(t0, t1, layer_consts[l - 1].2);
+        }
+        let events_of = |k: usize| -> u64 {
+            (islands.stencils_of(k).iter())
+                .map(|&a| through[active[a as usize].1 as usize])
+                .sum()
+        };
+        counts.islands = islands.len() as u64;
+        counts.layer_events = (0..islands.len()).map(events_of).sum();
+        counts.largest_island_layer_events = (0..islands.len()).map(events_of).max().unwrap_or(0);
+        let ws = &mut self.ws;
+        ws.islands = (0..islands.len())
+            .map(|k| Mutex::new(Island::new(&islands, k, active, w)))
+            .collect();
+        ws.island_cost = (0..islands.len())
+            .map(|k| islands.stencils_of(k).len() as f64)
+            .collect();
+    }
+
+    /// Every island's segment `[s, e)` (and its kicks at the internal tick
+    /// `e` when `internal`), in parallel; over ranks each island runs on one
+    /// rank and every rank gets every result (one collective). Results in
+    /// island order.
+    fn run_islands(
+        &mut self,
+        layer_consts: &[(f64, f64, Tick)],
+        (s, e): (Tick, Tick),
+        internal: bool,
+    ) -> Result<Vec<SegmentOutput>, SimError> {
+        let n = self.ws.islands.len();
+        if n == 0 {
+            return Ok(Vec::new());
+        }
+        let _span = trace::span_with("islands", "islands", n as u64);
+        let (order, owner) = largest_first(&self.ws.island_cost, self.exec.ranks());
+        let shared = Shared {
+            world: &self.world,
+            layer_consts,
+            exhaustive: self.every_layer_event,
+        };
+        let (islands, exec) = (&self.ws.islands, &self.exec);
+        let by_cost = self.exec.map_on_ranks(n, &owner, &|k| {
+            let mut island = islands[order[k] as usize].lock().expect("an island's lock");
+            island.run_segment(exec, &shared, (s, e), internal)
+        })?;
+        let mut outputs = vec![SegmentOutput::default(); n];
+        for (k, output) in order.into_iter().zip(by_cost) {
+            self.ws.island_cost[k as usize] = output.seconds;
+            outputs[k as usize] = output;
+        }
+        Ok(outputs)
+    }
+
+    /// Applies the islands' segment results in island order: their vertices'
+    /// new states, their breakpoints (the budget checked), their counts.
+    /// Returns the blow-up to report (the earliest, then the lowest vertex)
+    /// if an island stopped at one.
+    fn apply_islands(
+        &mut self,
+        outputs: &[SegmentOutput],
+        t0: Tick,
+        counts: &mut PassCounts,
+    ) -> Result<Option<SimError>, SimError> {
+        let w = &mut self.world;
+        let mut blew_up: Option<(Tick, u32)> = None;
+        for out in outputs {
+            for &(i, x, v, tau) in &out.moved {
+                let i = i as usize;
+                (w.x[i], w.v[i], w.tau[i]) = (x, v, tau);
+            }
+            for &(i, t, x) in &out.breakpoints {
+                self.traj
+                    .record(i as usize, t, x)
+                    .map_err(|e| budget_error(w, t0, e))?;
+            }
+            counts.layer_evaluations += out.evaluations;
+            counts.layer_kicks += out.kicks;
+            counts.min_separation = counts.min_separation.min(out.min_separation);
+            if let Some(b) = out.blew_up {
+                blew_up = Some(blew_up.map_or(b, |a| a.min(b)));
+            }
+        }
+        Ok(blew_up.map(|(t, i)| SimError::NonFinite {
+            place: w.place(i),
+            vertex: i,
+            time: w.lattice.seconds(t),
+        }))
+    }
+}
+
+fn budget_error(w: &World, t0: Tick, e: crate::trajectory::BudgetExceeded) -> SimError {
+    SimError::TrajectoryBudget {
+        time: w.lattice.seconds(t0),
+        breakpoints: e.breakpoints,
+        budget_bytes: e.budget_bytes,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clock_ticks_in_a_range() {
+        assert_eq!(ticks_in(0, 10, 3), 3); // 3, 6, 9
+        assert_eq!(ticks_in(3, 10, 3), 3);
+        assert_eq!(ticks_in(4, 10, 3), 2);
+        assert_eq!(ticks_in(4, 9, 3), 1);
+        assert_eq!(tick_at_or_after(0, 5), 5);
+        assert_eq!(tick_at_or_after(5, 5), 5);
+        assert_eq!(tick_at_or_after(6, 5), 10);
+    }
+
+    #[test]
+    fn largest_first_balances_and_is_deterministic() {
+        let (order, owner) = largest_first(&[1.0, 5.0, 3.0, 3.0, 0.5], 2);
+        assert_eq!(order, vec![1, 2, 3, 0, 4]);
+        assert_eq!(owner, vec![0, 1, 1, 0, 0]);
+        let (_, one) = largest_first(&[1.0, 2.0], 1);
+        assert_eq!(one, vec![0, 0]);
+    }
+}
