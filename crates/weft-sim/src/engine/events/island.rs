@@ -33,12 +33,14 @@ use crate::world::World;
 /// vertices' positions (what [`distance_lower_bound`] starts from).
 type Anchor = (f64, [DVec3; 4]);
 
-/// What the penalty scan decided for an awake stencil (stencils certainly
-/// outside every firing layer without room to sleep leave no verdict).
+/// What the penalty scan decided for a stencil it read (stencils certainly
+/// outside every firing layer without room to doze leave no verdict).
 #[derive(Clone, Copy, Debug)]
 enum Verdict {
-    /// Certified outside `eta_1` until this tick or a velocity change.
-    Sleep(Tick),
+    /// Certified outside layers `reach + 1..` (`eta_(reach+1)`) until this
+    /// tick or a velocity change; reach 0: outside every layer, asleep
+    /// (`crate::dormancy`).
+    Doze(u32, Tick),
     /// Evaluated exactly at these positions.
     Near(Closest, [DVec3; 4]),
 }
@@ -72,9 +74,9 @@ fn split_of(kind: StencilKind) -> usize {
 
 /// How long a stencil whose distance is at least `lower` at tick `t` (a
 /// lower bound of the computed distance, see [`distance_lower_bound`]) stays
-/// outside `eta_1`, the outermost layer, if its vertices keep their current
+/// outside `eta` (a layer's thickness) if its vertices keep their current
 /// velocities `v`: returns the first tick it may not, and the room
-/// `lower - eta_1` less a rounding slack (no sleep unless positive).
+/// `lower - eta` less a rounding slack (no doze unless positive).
 ///
 /// With velocities fixed each vertex moves by exactly `|v| (t' - t) q` (its
 /// position is `x + v (t' - tau) q`), so the anchor-based lower bound at `t'`
@@ -85,7 +87,7 @@ fn split_of(kind: StencilKind) -> usize {
 fn sleep(
     kind: StencilKind,
     lower: f64,
-    eta_1: f64,
+    eta: f64,
     x: &[DVec3; 4],
     v: &[DVec3; 4],
     quantum: f64,
@@ -93,7 +95,7 @@ fn sleep(
 ) -> (Tick, f64) {
     let split = split_of(kind);
     let scale = x.iter().fold(0.0f64, |m, p| m.max(p.abs().max_element()));
-    let room = lower - eta_1 - (1.0 + scale) * f64::powi(2.0, -40);
+    let room = lower - eta - (1.0 + scale) * f64::powi(2.0, -40);
     if !(room > 0.0) {
         return (t, room);
     }
@@ -195,6 +197,8 @@ pub(super) struct Island {
     hits: Vec<(u32, Closest)>,
     kick_items: Vec<(u32, u32)>,
     kicks: Vec<Option<PenaltyImpulse>>,
+    /// The kicks that are not zero: (stencil, index in `kicks`).
+    kicked: Vec<(u32, u32)>,
 }
 
 impl Island {
@@ -223,7 +227,9 @@ impl Island {
             .collect();
         let n = vertices.len();
         let mut dormancy = Dormancy::default();
-        dormancy.reset(&members.iter().map(|m| m.local).collect::<Vec<_>>(), n);
+        let local: Vec<[u32; 4]> = members.iter().map(|m| m.local).collect();
+        let depths: Vec<u32> = members.iter().map(|m| m.depth).collect();
+        dormancy.reset(&local, &depths, n);
         Island {
             inv_mass: vertices.iter().map(|&i| w.inv_mass[i as usize]).collect(),
             max_depth: members.iter().map(|m| m.depth).max().unwrap_or(0),
@@ -244,6 +250,7 @@ impl Island {
             hits: Vec::new(),
             kick_items: Vec::new(),
             kicks: Vec::new(),
+            kicked: Vec::new(),
         }
     }
 
@@ -308,7 +315,13 @@ impl Island {
     }
 
     /// The penalty-only batches at the ticks of `[s, e)` where one of the
-    /// island's layers fires, in tick order, until a value blows up.
+    /// island's layers fires and may read a stencil, in tick order, until a
+    /// value blows up.
+    ///
+    /// A batch whose outermost firing layer lies beyond every listed
+    /// stencil's reach reads nothing and kicks nothing, so only the ticks of
+    /// layers `1..=reach` (the largest reach) are visited; a stencil that
+    /// wakes at a due tick raises the reach from that tick on.
     fn run_ticks<E: Executor>(
         &mut self,
         exec: &E,
@@ -317,40 +330,41 @@ impl Island {
         e: Tick,
         out: &mut SegmentOutput,
     ) {
-        let depth = self.max_depth as usize;
-        // The next tick of each layer at or after `from` (clocks tick at
+        // The first tick of layer l at or after `from` (clocks tick at
         // n h_l, n ≥ 1).
-        let at_or_after = |from: Tick, p: Tick| from.max(1).div_ceil(p) * p;
-        let mut next: Vec<Tick> = (1..=depth as u32)
-            .map(|l| at_or_after(s, sh.layer(l).2))
-            .collect();
-        let mut firing: Vec<u32> = Vec::with_capacity(depth);
-        while let Some(t) = next.iter().copied().min().filter(|&t| t < e) {
-            if self.dormancy.awake().is_empty() {
-                // Every stencil asleep: no batch reads one before the first
-                // wake tick; go straight to it.
-                match self.dormancy.next_due() {
-                    Some(due) if due > t && due < e => {
-                        for (l, n) in next.iter_mut().enumerate() {
-                            *n = at_or_after(due, sh.layer(l as u32 + 1).2);
-                        }
-                        continue;
-                    }
-                    Some(due) if due <= t => {}
-                    _ => break,
-                }
+        let at_or_after = |from: Tick, l: u32| {
+            let p = sh.layer(l).2;
+            from.max(1).div_ceil(p) * p
+        };
+        let mut firing: Vec<u32> = Vec::with_capacity(self.max_depth as usize);
+        let mut from = s;
+        while from < e {
+            let dormancy = &self.dormancy;
+            let reach = (dormancy.awake().iter())
+                .map(|&a| dormancy.reach(a))
+                .max()
+                .unwrap_or(0);
+            let t = (1..=reach)
+                .map(|l| at_or_after(from, l))
+                .min()
+                .unwrap_or(Tick::MAX);
+            // Stencils due to wake before that tick may raise the reach:
+            // wake them and look again from their tick.
+            if let Some(due) = dormancy.next_due().filter(|&due| due < t.min(e)) {
+                self.dormancy.wake_due(due.max(from));
+                from = due.max(from);
+                continue;
+            }
+            if t >= e {
+                break;
             }
             firing.clear();
-            for (l, n) in next.iter_mut().enumerate() {
-                if *n == t {
-                    firing.push(l as u32 + 1);
-                    *n += sh.layer(l as u32 + 1).2;
-                }
-            }
+            firing.extend((1..=reach).filter(|&l| t % sh.layer(l).2 == 0));
             if let Err(j) = self.batch(exec, sh, t, &firing, false, out) {
                 out.blew_up = Some((t, self.vertices[j as usize]));
                 return;
             }
+            from = t + 1;
         }
     }
 
@@ -402,12 +416,15 @@ impl Island {
         // outside every firing layer), in key order.
         self.dormancy.wake_due(t);
         self.scan.clear();
-        let members = &self.members;
+        let dormancy = &self.dormancy;
         self.scan.extend(
-            (self.dormancy.awake().iter())
+            (dormancy.awake().iter())
                 .copied()
-                .filter(|&a| members[a as usize].depth >= first),
+                .filter(|&a| dormancy.reach(a) >= first),
         );
+        if self.scan.is_empty() {
+            return Ok(()); // nothing read: nothing kicks
+        }
         self.scan.sort_unstable();
         let mut verdicts = std::mem::take(&mut self.verdicts);
         verdicts.clear();
@@ -423,20 +440,27 @@ impl Island {
                         distance_lower_bound(m.key.kind, *d0, x0, &x)
                     });
                 // Certainly outside every firing layer: its kicks are zero,
-                // so skipping the evaluation leaves the same bits.
+                // so skipping the evaluation leaves the same bits. It sleeps
+                // (outside eta_1) or dozes (outside the layers it is not
+                // in) for as long as its velocities certify it.
                 if lower >= eta_first && !sh.exhaustive {
                     let v = std::array::from_fn(|j| this.velocity(w, m.local[j], m.key.v[j]));
-                    let (awake_at, room) = sleep(
-                        m.key.kind,
-                        lower,
-                        w.schedule.eta_1,
-                        &x,
-                        &v,
-                        w.lattice.quantum,
-                        t,
-                    );
+                    let q = w.lattice.quantum;
+                    let (awake_at, room) = sleep(m.key.kind, lower, w.schedule.eta_1, &x, &v, q, t);
                     if room > 0.0 {
-                        verdicts.push((a, Verdict::Sleep(awake_at)));
+                        verdicts.push((a, Verdict::Doze(0, awake_at)));
+                    } else {
+                        // The layers 1..=reach it may be inside (reach <
+                        // first: it is outside eta_first).
+                        let reach =
+                            (1..first).take_while(|&l| sh.layer(l).0 > lower).count() as u32;
+                        if reach > 0 {
+                            let eta = sh.layer(reach + 1).0;
+                            let (awake_at, room) = sleep(m.key.kind, lower, eta, &x, &v, q, t);
+                            if room > 0.0 {
+                                verdicts.push((a, Verdict::Doze(reach, awake_at)));
+                            }
+                        }
                     }
                 } else {
                     verdicts.push((a, Verdict::Near(stencil_closest(m.key.kind, &x), x)));
@@ -466,9 +490,9 @@ impl Island {
         self.hits.clear();
         for &(a, verdict) in &verdicts {
             match verdict {
-                Verdict::Sleep(until) => {
+                Verdict::Doze(reach, until) => {
                     if !internal {
-                        self.dormancy.sleep(a, until);
+                        self.dormancy.doze(a, reach, until);
                     }
                 }
                 Verdict::Near(c, x) => {
@@ -523,16 +547,21 @@ impl Island {
         }
         // Fold in (layer, key) order: the friction clamp's sums first, then
         // each kick with its friction scaled as a whole (`FrictionClamp`).
-        let kicked: Vec<(usize, &PenaltyImpulse)> = (self.kick_items.iter().zip(&kicks))
-            .filter_map(|(&(_, h), k)| Some((self.hits[h as usize].0 as usize, k.as_ref()?)))
-            .collect();
-        for &(a, k) in &kicked {
-            if self.members[a].mu > 0.0 {
-                self.friction.add(&self.members[a].local, k);
+        self.kicked.clear();
+        for (n, (&(_, h), k)) in self.kick_items.iter().zip(&kicks).enumerate() {
+            if k.is_some() {
+                self.kicked.push((self.hits[h as usize].0, n as u32));
             }
         }
-        for &(a, k) in &kicked {
-            let m = &self.members[a];
+        let kick = |n: u32| kicks[n as usize].as_ref().expect("a kick");
+        for &(a, n) in &self.kicked {
+            let m = &self.members[a as usize];
+            if m.mu > 0.0 {
+                self.friction.add(&m.local, kick(n));
+            }
+        }
+        for &(a, n) in &self.kicked {
+            let (m, k) = (&self.members[a as usize], kick(n));
             let rubs = m.mu > 0.0;
             let s = if rubs {
                 self.friction.scale(&m.local, k)
@@ -563,13 +592,13 @@ impl Island {
                 }
             }
         }
-        for &(a, _) in &kicked {
-            if self.members[a].mu > 0.0 {
-                self.friction.clear(&self.members[a].local);
+        for &(a, _) in &self.kicked {
+            let m = &self.members[a as usize];
+            if m.mu > 0.0 {
+                self.friction.clear(&m.local);
             }
         }
-        out.kicks += kicked.len() as u64;
-        drop(kicked);
+        out.kicks += self.kicked.len() as u64;
         self.kicks = kicks;
         if internal {
             Ok(())
