@@ -21,11 +21,15 @@ use serde::{de::DeserializeOwned, Serialize};
 pub trait Message: Serialize + DeserializeOwned + Send {}
 impl<T: Serialize + DeserializeOwned + Send> Message for T {}
 
-/// Messages and payload bytes a rank sent to its peers.
+/// Messages and payload bytes a rank sent to its peers, and the
+/// communication rounds it took part in: collectives (every rank waits for
+/// every other) and point-to-point exchanges (a rank waits for its peers).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub struct Traffic {
     pub messages: u64,
     pub bytes: u64,
+    pub collectives: u64,
+    pub exchanges: u64,
 }
 
 /// Ranks lost contact (a peer failed or is gone): the run cannot go on.

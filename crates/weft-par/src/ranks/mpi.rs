@@ -232,6 +232,7 @@ impl Transport for MpiTransport {
 
         let peers = size.saturating_sub(1) as u64;
         self.sent.add(peers, peers * my_len);
+        self.sent.collective();
 
         let mut parts: Vec<Vec<u8>> = counts
             .iter()
@@ -315,6 +316,9 @@ impl Transport for MpiTransport {
         }
         for (_, bytes) in &sends {
             self.sent.add(1, bytes.len() as u64);
+        }
+        if !sends.is_empty() || !recvs.is_empty() {
+            self.sent.exchange();
         }
         Ok(received)
     }

@@ -41,6 +41,8 @@ pub use weft_sim::Traffic;
 pub struct TrafficCounter {
     messages: AtomicU64,
     bytes: AtomicU64,
+    collectives: AtomicU64,
+    exchanges: AtomicU64,
 }
 
 impl TrafficCounter {
@@ -50,11 +52,23 @@ impl TrafficCounter {
         self.bytes.fetch_add(bytes, Ordering::Relaxed);
     }
 
+    /// Counts one collective this rank took part in.
+    pub fn collective(&self) {
+        self.collectives.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Counts one point-to-point exchange with at least one peer.
+    pub fn exchange(&self) {
+        self.exchanges.fetch_add(1, Ordering::Relaxed);
+    }
+
     /// What was counted so far.
     pub fn total(&self) -> Traffic {
         Traffic {
             messages: self.messages.load(Ordering::Relaxed),
             bytes: self.bytes.load(Ordering::Relaxed),
+            collectives: self.collectives.load(Ordering::Relaxed),
+            exchanges: self.exchanges.load(Ordering::Relaxed),
         }
     }
 }
@@ -215,6 +229,7 @@ impl Transport for ChannelTransport {
     }
 
     fn all_gather(&self, mine: Vec<u8>) -> Result<Vec<Vec<u8>>, RankFailure> {
+        self.sent.collective();
         for j in 0..self.size() {
             if j != self.rank {
                 self.send(j, mine.clone())?;
@@ -240,6 +255,9 @@ impl Transport for ChannelTransport {
     ) -> Result<Vec<Vec<u8>>, RankFailure> {
         // Channels buffer: the sends complete at once, the work runs, then
         // the receives wait for what the peers sent.
+        if !sends.is_empty() || !recvs.is_empty() {
+            self.sent.exchange();
+        }
         for (j, bytes) in sends {
             self.send(j, bytes)?;
         }

@@ -98,6 +98,8 @@ struct Sample {
     internal_evaluations: u64,
     /// Internal stencil evaluations over all passes (rolled-back ones too).
     internal_evaluations_all_passes: u64,
+    /// Internal ticks over all passes (rolled-back ones too).
+    internal_ticks_all_passes: u64,
     layer_events: u64,
     /// Contact islands summed over windows, and the layer events of each
     /// window's largest island.
@@ -129,6 +131,9 @@ struct RankSample {
     internal: f64,
     messages: u64,
     bytes: u64,
+    /// Collectives and point-to-point exchanges this rank took part in.
+    collectives: u64,
+    exchanges: u64,
 }
 
 /// One rank's figures per window (median run).
@@ -138,6 +143,11 @@ pub struct RankFigures {
     pub stage_seconds_per_window: StageTimes,
     pub messages_per_window: f64,
     pub bytes_per_window: f64,
+    /// Communication rounds per window, and both together per internal tick
+    /// of every pass (rolled-back ones included).
+    pub collectives_per_window: f64,
+    pub exchanges_per_window: f64,
+    pub rounds_per_internal_tick: f64,
 }
 
 /// Seconds per window, median over the repeats.
@@ -673,6 +683,7 @@ fn measure<E: Executor>(
         // blow-up, which is rolled back, would count a little high).
         s.internal_evaluations_all_passes +=
             w.internal_stencil_evaluations * (u64::from(w.rollbacks) + 1);
+        s.internal_ticks_all_passes += w.internal_events * (u64::from(w.rollbacks) + 1);
         s.internal_evaluations += w.internal_stencil_evaluations;
         s.layer_events += w.layer_events;
         s.islands += w.islands;
@@ -692,6 +703,8 @@ fn measure<E: Executor>(
     let traffic = engine.executor().traffic();
     s.own.messages = traffic.messages - traffic_before.messages;
     s.own.bytes = traffic.bytes - traffic_before.bytes;
+    s.own.collectives = traffic.collectives - traffic_before.collectives;
+    s.own.exchanges = traffic.exchanges - traffic_before.exchanges;
     s.ranks = vec![s.own.clone()];
     s.narrow_load = engine.narrow_load.clone();
     Ok(s)
@@ -762,6 +775,12 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
                 stage_seconds_per_window: stages(&|s| &s.ranks[k]),
                 messages_per_window: of_rank(&|s| &s.ranks[k], &|x| x.messages as f64),
                 bytes_per_window: of_rank(&|s| &s.ranks[k], &|x| x.bytes as f64),
+                collectives_per_window: of_rank(&|s| &s.ranks[k], &|x| x.collectives as f64),
+                exchanges_per_window: of_rank(&|s| &s.ranks[k], &|x| x.exchanges as f64),
+                rounds_per_internal_tick: med(&|s| {
+                    let x = &s.ranks[k];
+                    (x.collectives + x.exchanges) as f64 / s.internal_ticks_all_passes.max(1) as f64
+                }),
             })
             .collect();
         let imbalance = |f: &dyn Fn(&NarrowLoad) -> &[f64]| {
@@ -946,7 +965,8 @@ fn table(r: &BenchReport) -> String {
             let _ = writeln!(
                 s,
                 "  rank {:>3}: events {} internal {} broad {} narrow {} commit {} other {} ms; \
-                 {:.0} messages, {:.3} MB sent per window",
+                 {:.0} messages, {:.3} MB sent, {:.0} collectives and {:.0} exchanges per \
+                 window ({:.2} per internal tick)",
                 k.rank,
                 ms(st.events),
                 ms(st.internal),
@@ -955,7 +975,10 @@ fn table(r: &BenchReport) -> String {
                 ms(st.commit),
                 ms(st.other),
                 k.messages_per_window,
-                k.bytes_per_window / 1e6
+                k.bytes_per_window / 1e6,
+                k.collectives_per_window,
+                k.exchanges_per_window,
+                k.rounds_per_internal_tick
             );
         }
     }

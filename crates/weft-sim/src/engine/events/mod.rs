@@ -72,8 +72,11 @@ pub(super) struct Workspace {
     vertex_runs: Vec<usize>,
     /// The pass's contact islands (each locked by the task that runs it).
     islands: Vec<Mutex<Island>>,
+    /// Over ranks, the rank each island runs on for the whole pass (what it
+    /// keeps between segments — its anchors and dormancy — stays there).
+    island_rank: Vec<u32>,
     /// Each island's cost: its stencils at first, then the seconds its last
-    /// segment took (the same on every rank: they travel with the results).
+    /// segment took; islands are handed out largest first.
     island_cost: Vec<f64>,
 }
 
@@ -108,29 +111,31 @@ fn tick_at_or_after(t: Tick, p: Tick) -> Tick {
     t.max(1).div_ceil(p) * p
 }
 
-/// Places items of the given costs on `ranks` ranks, largest first on the
-/// least-loaded rank (ties: the lower index); returns the items largest
-/// first and each one's rank. Depends on the costs only, so every rank that
-/// has the same costs places alike.
-fn largest_first(costs: &[f64], ranks: usize) -> (Vec<u32>, Vec<u32>) {
+/// The items of the given costs, largest first (ties: the lower index).
+fn largest_first(costs: &[f64]) -> Vec<u32> {
     let mut order: Vec<u32> = (0..costs.len() as u32).collect();
     order.sort_by(|&a, &b| {
         costs[b as usize]
             .total_cmp(&costs[a as usize])
             .then(a.cmp(&b))
     });
+    order
+}
+
+/// Places items of the given costs on `ranks` ranks, largest first on the
+/// least-loaded rank (ties: the lower rank); returns each item's rank.
+/// Depends on the costs only, so every rank places alike.
+fn place_largest_first(costs: &[f64], ranks: usize) -> Vec<u32> {
     let mut load = vec![0.0f64; ranks.max(1)];
-    let owner = order
-        .iter()
-        .map(|&k| {
-            let r = (0..load.len())
-                .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
-                .expect("a rank");
-            load[r] += costs[k as usize];
-            r as u32
-        })
-        .collect();
-    (order, owner)
+    let mut owner = vec![0u32; costs.len()];
+    for k in largest_first(costs) {
+        let r = (0..load.len())
+            .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
+            .expect("a rank");
+        load[r] += costs[k as usize];
+        owner[k as usize] = r as u32;
+    }
+    owner
 }
 
 impl<E: Executor> Engine<E> {
@@ -247,12 +252,14 @@ impl<E: Executor> Engine<E> {
         ws.island_cost = (0..islands.len())
             .map(|k| islands.stencils_of(k).len() as f64)
             .collect();
+        ws.island_rank = place_largest_first(&ws.island_cost, self.exec.ranks());
     }
 
     /// Every island's segment `[s, e)` (and its kicks at the internal tick
-    /// `e` when `internal`), in parallel; over ranks each island runs on one
-    /// rank and every rank gets every result (one collective). Results in
-    /// island order.
+    /// `e` when `internal`), in parallel, the largest (by the seconds of its
+    /// last segment) first; over ranks each island runs on its rank and
+    /// every rank gets every result (one collective). Results in island
+    /// order.
     fn run_islands(
         &mut self,
         layer_consts: &[(f64, f64, Tick)],
@@ -264,7 +271,10 @@ impl<E: Executor> Engine<E> {
             return Ok(Vec::new());
         }
         let _span = trace::span_with("islands", "islands", n as u64);
-        let (order, owner) = largest_first(&self.ws.island_cost, self.exec.ranks());
+        let order = largest_first(&self.ws.island_cost);
+        let owner: Vec<u32> = (order.iter())
+            .map(|&k| self.ws.island_rank[k as usize])
+            .collect();
         let shared = Shared {
             world: &self.world,
             layer_consts,
@@ -345,10 +355,10 @@ mod tests {
 
     #[test]
     fn largest_first_balances_and_is_deterministic() {
-        let (order, owner) = largest_first(&[1.0, 5.0, 3.0, 3.0, 0.5], 2);
-        assert_eq!(order, vec![1, 2, 3, 0, 4]);
-        assert_eq!(owner, vec![0, 1, 1, 0, 0]);
-        let (_, one) = largest_first(&[1.0, 2.0], 1);
-        assert_eq!(one, vec![0, 0]);
+        let costs = [1.0, 5.0, 3.0, 3.0, 0.5];
+        assert_eq!(largest_first(&costs), vec![1, 2, 3, 0, 4]);
+        // 5 → rank 0; 3, 3 → rank 1; 1 → rank 0 (5 < 6); 0.5 → rank 0 (6 = 6).
+        assert_eq!(place_largest_first(&costs, 2), vec![0, 0, 1, 1, 0]);
+        assert_eq!(place_largest_first(&[1.0, 2.0], 1), vec![0, 0]);
     }
 }
