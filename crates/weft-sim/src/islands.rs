@@ -132,6 +132,27 @@ impl Islands {
         }
     }
 
+    /// All of `active` as one island, whatever joins it: run as one, its
+    /// batches are the global schedule's (one batch per tick over every
+    /// stencil), the reference the islands are checked against.
+    pub fn merged<'a>(active: impl IntoIterator<Item = &'a StencilKey>, inv_mass: &[f64]) -> Self {
+        let keys: Vec<&StencilKey> = active.into_iter().collect();
+        if keys.is_empty() {
+            return Self::default();
+        }
+        let mut vertices: Vec<u32> = (keys.iter().flat_map(|k| k.v))
+            .filter(|&i| inv_mass[i as usize] > 0.0)
+            .collect();
+        vertices.sort_unstable();
+        vertices.dedup();
+        Islands {
+            stencil_start: vec![0, keys.len() as u32],
+            stencils: (0..keys.len() as u32).collect(),
+            vertex_start: vec![0, vertices.len() as u32],
+            vertices,
+        }
+    }
+
     /// How many islands.
     pub fn len(&self) -> usize {
         self.stencil_start.len().saturating_sub(1)

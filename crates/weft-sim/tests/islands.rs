@@ -124,3 +124,15 @@ fn kinematic_vertices_join_nothing() {
     assert_eq!(joined.len(), 1);
     assert!(Islands::build(&[], &inv_mass).is_empty());
 }
+
+#[test]
+fn merged_is_one_island_of_every_stencil() {
+    let inv_mass = [0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0];
+    let a = StencilKey::vertex_face(1, [0, 2, 3]);
+    let b = StencilKey::vertex_face(4, [0, 5, 6]);
+    let one = Islands::merged(&[a, b], &inv_mass);
+    assert_eq!(one.len(), 1);
+    assert_eq!(one.stencils_of(0), &[0, 1]);
+    assert_eq!(one.vertices_of(0), &[1, 2, 3, 4, 5, 6]);
+    assert!(Islands::merged(&[], &inv_mass).is_empty());
+}

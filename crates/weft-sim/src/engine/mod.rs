@@ -92,6 +92,8 @@ pub struct Engine<E: Executor = Serial> {
     /// Evaluate every penalty-layer event exactly (no sleeping, no
     /// distance-bound skip): the same bits, slower; for verifying the skips.
     every_layer_event: bool,
+    /// Run every active stencil as one island (the global schedule).
+    one_island: bool,
 }
 
 /// Narrow-phase work per rank (measured task seconds, summed over passes):
@@ -137,6 +139,7 @@ impl<E: Executor> Engine<E> {
             narrow_load: NarrowLoad::default(),
             share,
             every_layer_event: false,
+            one_island: false,
         };
         engine.check_initial_state()?;
         Ok(engine)
@@ -154,6 +157,13 @@ impl<E: Executor> Engine<E> {
     /// zero, so the bits are the same (tested); only the time differs.
     pub fn evaluate_every_layer_event(&mut self, on: bool) {
         self.every_layer_event = on;
+    }
+
+    /// Runs every active stencil as one contact island when `on`: one batch
+    /// per tick over every stencil, the global schedule of batches the
+    /// islands reproduce bit for bit (tested); only the time differs.
+    pub fn run_as_one_island(&mut self, on: bool) {
+        self.one_island = on;
     }
 
     /// The executor.

@@ -231,7 +231,12 @@ impl<E: Executor> Engine<E> {
         counts: &mut PassCounts,
     ) {
         let w = &self.world;
-        let islands = Islands::build(active.iter().map(|a| &a.0), &w.inv_mass);
+        let keys = active.iter().map(|a| &a.0);
+        let islands = if self.one_island {
+            Islands::merged(keys, &w.inv_mass)
+        } else {
+            Islands::build(keys, &w.inv_mass)
+        };
         // through[d]: the ticks of layers 1..=d in [t0, t1).
         let mut through = vec![0u64; layer_consts.len() + 1];
         for l in 1..through.len() {

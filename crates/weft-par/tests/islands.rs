@@ -1,0 +1,112 @@
+//! Contact islands reproduce the global schedule bit for bit: on random
+//! small scenes (cloths falling at random tilts and speeds onto a sphere and
+//! onto each other, friction on or off, two layer-1 steps) the islands run
+//! in parallel on two threads end every window in the same positions,
+//! velocities, clocks and layers as every active stencil run as one island
+//! (one batch per tick over all of them, `Engine::run_as_one_island`), with
+//! the same counts of layer evaluations, kicks and breakpoints.
+
+use glam::DVec3;
+use weft_geom::shapes::{grid, sphere};
+use weft_par::Threads;
+use weft_sim::kinematics::Motion;
+use weft_sim::materials::Material;
+use weft_sim::{
+    ContactConfig, Engine, LimitsConfig, ObjectKind, ObjectSpec, Serial, TimeConfig, WorldSpec,
+};
+use weft_testkit::Rng;
+
+fn scene(rng: &mut Rng, case: usize) -> WorldSpec {
+    let mut objects = vec![ObjectSpec {
+        friction: None,
+        name: "ball".into(),
+        mesh: sphere(DVec3::ZERO, 0.03, 2),
+        kind: ObjectKind::Obstacle {
+            motion: Motion::Fixed,
+        },
+    }];
+    // Four small cloths over the ball, two side by side in each of two
+    // layers: they touch the ball and each other apart and together.
+    for k in 0..4 {
+        let eu = (DVec3::X + rng.vec(0.15)).normalize();
+        let ev = (DVec3::Z + rng.vec(0.15)).cross(eu).normalize();
+        let side = if k % 2 == 0 { -0.014 } else { 0.014 };
+        let centre = DVec3::new(
+            side + rng.uniform(-0.003, 0.003),
+            rng.uniform(-0.01, 0.01),
+            0.0,
+        ) + DVec3::Z * (0.042 + 0.02 * (k / 2) as f64);
+        let mesh = grid(centre, eu, ev, [0.024, 0.024], [5, 5]);
+        let n = mesh.num_vertices();
+        objects.push(ObjectSpec {
+            friction: None,
+            name: format!("cloth{k}"),
+            mesh,
+            kind: ObjectKind::Cloth {
+                material: Material::plate(0.15, 2.0e5, 0.3, 4.0e-4),
+                rest: None,
+                velocity: vec![rng.vec(0.5) - DVec3::Z; n],
+            },
+        });
+    }
+    WorldSpec {
+        objects,
+        pins: vec![],
+        gravity: DVec3::new(0.0, 0.0, -9.81),
+        contact: ContactConfig {
+            thickness: 1e-3,
+            friction: if case % 2 == 0 { 0.0 } else { 0.4 },
+            layer1_step_shift: (case / 2) as u32,
+            ..Default::default()
+        },
+        time: TimeConfig {
+            internal_step: None,
+            beta: 0.3,
+            steps_per_window: 20,
+        },
+        limits: LimitsConfig::default(),
+        partitions: 4,
+    }
+}
+
+#[test]
+fn islands_on_threads_give_the_bits_of_the_global_schedule() {
+    let mut rng = Rng(0x1514);
+    let (mut most_islands, mut kicks) = (0u64, 0u64);
+    for case in 0..4 {
+        let spec = scene(&mut rng, case);
+        let world = weft_par::build_world(&spec).unwrap();
+        let mut global = Engine::new(world.clone(), Serial).unwrap();
+        global.run_as_one_island(true);
+        let mut islands = Engine::new(world, Threads::new(2).unwrap()).unwrap();
+        for w in 0..30 {
+            let a = global.step_window().unwrap();
+            let b = islands.step_window().unwrap();
+            let what = format!("case {case}, window {w}");
+            assert_eq!(global.world.x, islands.world.x, "{what}: positions");
+            assert_eq!(global.world.v, islands.world.v, "{what}: velocities");
+            assert_eq!(global.world.tau, islands.world.tau, "{what}: clocks");
+            assert_eq!(global.world.layers, islands.world.layers, "{what}: layers");
+            let counts = |s: &weft_sim::WindowStats| {
+                (
+                    s.layer_events,
+                    s.layer_evaluations,
+                    s.layer_kicks,
+                    s.breakpoints,
+                    s.rollbacks,
+                )
+            };
+            assert_eq!(counts(&a), counts(&b), "{what}: counts");
+            assert_eq!(a.min_separation, b.min_separation, "{what}");
+            assert!(a.islands <= 1, "{what}: one island");
+            most_islands = most_islands.max(b.islands);
+            kicks += b.layer_kicks;
+        }
+    }
+    println!("up to {most_islands} islands in a window, {kicks} kicks");
+    assert!(
+        most_islands >= 4,
+        "the scenes must make several islands: {most_islands}"
+    );
+    assert!(kicks > 1000, "too little contact: {kicks} kicks");
+}
