@@ -99,7 +99,14 @@ fn sleep(
     if !(room > 0.0) {
         return (t, room);
     }
-    let speed = |r: std::ops::Range<usize>| r.map(|j| v[j].length()).fold(0.0f64, f64::max);
+    // The largest speed of a primitive's vertices: sqrt is correctly
+    // rounded and monotone, so the root of the largest square is the
+    // largest root, one square root per primitive.
+    let speed = |r: std::ops::Range<usize>| {
+        r.map(|j| v[j].length_squared())
+            .fold(0.0f64, f64::max)
+            .sqrt()
+    };
     let s = (speed(0..split) + speed(split..4)) * quantum;
     let ticks = room / s; // +inf when nothing moves
     let awake_at = if ticks >= (Tick::MAX - t) as f64 {
@@ -199,6 +206,8 @@ pub(super) struct Island {
     kicks: Vec<Option<PenaltyImpulse>>,
     /// The kicks that are not zero: (stencil, index in `kicks`).
     kicked: Vec<(u32, u32)>,
+    /// The end of the segment being run.
+    segment_end: Tick,
 }
 
 impl Island {
@@ -251,6 +260,7 @@ impl Island {
             kick_items: Vec::new(),
             kicks: Vec::new(),
             kicked: Vec::new(),
+            segment_end: 0,
         }
     }
 
@@ -279,6 +289,7 @@ impl Island {
         };
         let idle = self.dormancy.awake().is_empty()
             && self.dormancy.next_due().is_none_or(|due| due > last);
+        self.segment_end = e;
         if !idle {
             self.gather(sh.world);
             self.run_ticks(exec, sh, s, e, &mut out);
@@ -492,6 +503,14 @@ impl Island {
             match verdict {
                 Verdict::Doze(reach, until) => {
                     if !internal {
+                        // Certified past the segment's end, where an internal
+                        // tick wakes everything (or the pass ends): no wake
+                        // tick to keep.
+                        let until = if until >= self.segment_end {
+                            Tick::MAX
+                        } else {
+                            until
+                        };
                         self.dormancy.doze(a, reach, until);
                     }
                 }
