@@ -743,9 +743,9 @@ mod read_mesh_validation {
             e,
             IoError::Mesh {
                 line: Some(8),
-                ref source,
+                ref mesh,
                 ..
-            } if matches!(**source, MeshError::DegenerateTriangle { triangle: 1, .. })
+            } if matches!(**mesh, MeshError::DegenerateTriangle { triangle: 1, .. })
         ));
         let msg = e.to_string();
         // Elements as the file numbers them: OBJ `v` numbers, faces by line.
@@ -799,10 +799,10 @@ mod read_mesh_validation {
             matches!(
                 e,
                 IoError::Mesh {
-                    ref source,
+                    ref mesh,
                     line: None,
                     ..
-                } if **source == MeshError::Empty
+                } if **mesh == MeshError::Empty
             ),
             "{e}"
         );
@@ -957,8 +957,8 @@ mod import {
         assert!(
             matches!(
                 e,
-                IoError::Mesh { ref source, .. }
-                    if matches!(**source, MeshError::TooSmallForExtent { far_vertex: 1939, .. })
+                IoError::Mesh { ref mesh, .. }
+                    if matches!(**mesh, MeshError::TooSmallForExtent { far_vertex: 1939, .. })
             ),
             "{msg}"
         );
