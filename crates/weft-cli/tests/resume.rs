@@ -526,6 +526,35 @@ fn refusals_without_a_checkpoint_or_over_an_existing_run() {
     assert!(stderr(&o).contains("no checkpoint"), "{}", stderr(&o));
 }
 
+/// An engine error that the manifest cannot record either is reported as
+/// itself, with its own advice and a note about the manifest: not "remove the
+/// cause, then --resume", since a resume would hit the rollback cap again.
+#[test]
+fn an_engine_error_the_manifest_cannot_record_keeps_its_own_advice() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = fresh_run(
+        dir.path(),
+        Some("write:manifest:failed@1"),
+        &["--set", "contact.max_rollbacks=0"],
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let err = stderr(&o);
+    assert!(
+        err.contains("rollbacks") && err.contains("raise contact.max_rollbacks"),
+        "{err}"
+    );
+    assert!(
+        err.contains("recording that in the manifest failed too")
+            && err.contains("manifest.json: No space left on device"),
+        "{err}"
+    );
+    assert!(
+        !err.contains("remove the cause") && !err.contains("--resume"),
+        "{err}"
+    );
+    assert_eq!(manifest(dir.path())["status"], "running");
+}
+
 /// Hitting the rollback cap stops the run with an error naming the stencil,
 /// keeps a reproduction bundle and checkpoints the last committed window.
 #[test]

@@ -681,7 +681,9 @@ fn step_to_end<E: Executor>(
 }
 
 /// Records in the manifest that the run failed with `e` and returns the error
-/// to report. At the rollback cap the engine is back at the window start (the
+/// to report: an engine error as it is (its own advice, its type kept; with a
+/// note when the manifest could not record it), any other failure with how to
+/// go on from the last checkpoint. At the rollback cap the engine is back at the window start (the
 /// last commit): that state is kept for a reproduction and checkpointed. Any
 /// other failure (an engine error, a write that failed) checkpoints nothing:
 /// the outputs may lag the engine, and the last good checkpoint stays the one
@@ -705,9 +707,21 @@ fn record_failure<E: Executor>(
     }
     manifest.status = "failed".into();
     manifest.error = Some(crate::error_text(&e));
-    let recorded = manifest.write(out);
-    if engine_error.is_some() && recorded.is_ok() {
-        return e;
+    // The manifest's write error names the file.
+    let recorded = manifest.write(out).map_err(|m| {
+        format!(
+            "the run failed, and recording that in the manifest failed too ({})",
+            crate::error_text(&m)
+        )
+    });
+    if engine_error.is_some() {
+        // The simulation's own error says what to change (a resume would
+        // meet it again), and it keeps its type: under MPI every rank has
+        // the same one and exits with it instead of aborting the job.
+        return match recorded {
+            Ok(()) => e,
+            Err(note) => e.context(note),
+        };
     }
     // Not the simulation's fault: say how to go on.
     let resume = match &manifest.last_checkpoint {
@@ -726,11 +740,7 @@ fn record_failure<E: Executor>(
     };
     let manifest_note = match recorded {
         Ok(()) => String::new(),
-        Err(m) => format!(
-            "; {} could not record the failure either ({})",
-            out.join(manifest::FILE).display(),
-            crate::error_text(&m)
-        ),
+        Err(note) => format!("; {note}"),
     };
     anyhow::anyhow!("{}{manifest_note}\n  {resume}", crate::error_text(&e))
 }
