@@ -104,8 +104,8 @@ pub struct RunArgs {
     #[arg(long, value_name = "DURATION", value_parser = signals::parse_duration)]
     pub stop_after: Option<Duration>,
     /// Write into an --out folder that is not empty: the files an earlier run
-    /// there wrote (its manifest says which) are removed first; other files
-    /// stay, except those named as a run's outputs, which are replaced.
+    /// there wrote (its manifest says which; without one, the files named as
+    /// a run's outputs) are removed first; other files stay.
     #[arg(long)]
     pub overwrite: bool,
     /// Do not render a preview when the run completes or stops at
