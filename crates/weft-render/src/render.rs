@@ -198,9 +198,9 @@ pub fn render_run(dir: &Path, opts: &RenderOptions) -> Result<RenderReport, Rend
     };
     let mut warnings = Vec::new();
     if let Some(line) = run.incomplete_last_line {
-        warnings.push(format!(
-            "{}:{line}: skipped an incomplete last line (is the run still writing it?)",
-            dir.join("frames.jsonl").display()
+        warnings.push(crate::json_lines::incomplete_warning(
+            &dir.join("frames.jsonl"),
+            line,
         ));
     }
     let gif_path = preview_dir.join("preview.gif");
