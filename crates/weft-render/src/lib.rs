@@ -49,5 +49,7 @@ pub use image::Image;
 pub use plot::{plot_stats, PlotReport};
 pub use preview::{ffmpeg_available, VideoMode};
 pub use raster::{Rasterizer, Surface};
-pub use render::{render_run, RenderOptions, RenderReport};
+pub use render::{
+    is_frame, render_run, RenderOptions, RenderReport, PREVIEW_GIF, PREVIEW_MP4, RENDER_FOLDER,
+};
 pub use run_folder::{FrameEntry, FrameMesh, ObjectRange, RunFolder};

@@ -15,6 +15,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context};
 use weft_io::scene::FrameFormat;
+use weft_render::{is_frame, PREVIEW_GIF, PREVIEW_MP4, RENDER_FOLDER};
 
 use super::manifest::{self, Manifest};
 use super::outputs::{frames_folder, FRAMES_FILE, PVD_FILE, STATS_FILE, TIMING_FILE};
@@ -29,15 +30,13 @@ const FIXED_FILES: [&str; 11] = [
     FRAMES_FILE,
     PVD_FILE,
     CHECKPOINT_FILE,
-    "preview.mp4",
-    "preview.gif",
+    PREVIEW_MP4,
+    PREVIEW_GIF,
     "repro/window_start.ply",
     "repro/window_start.json",
     manifest::FILE,
 ];
 
-/// Where the preview's PNG frames go (`weft_render::render_run`).
-const RENDER_FOLDER: &str = "render";
 const REPRO_FOLDER: &str = "repro";
 const ALL_FORMATS: [FrameFormat; 3] = [FrameFormat::Ply, FrameFormat::Obj, FrameFormat::Vtk];
 
@@ -197,14 +196,6 @@ fn weft_temporaries(out: &Path, formats: &[FrameFormat]) -> Vec<std::path::PathB
     found
 }
 
-/// `frame_NNNNN.EXT`: a frame file (any number of digits).
-fn is_frame(name: &str, ext: &str) -> bool {
-    name.strip_prefix("frame_")
-        .and_then(|r| r.strip_suffix(ext))
-        .and_then(|r| r.strip_suffix('.'))
-        .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
-}
-
 /// The file a temporary `.NAME.PID.N.tmp` (weft-io's atomic writes) or
 /// `.NAME.PID.tmp` (weft-render's) was to become: `NAME`.
 fn temporary_of(name: &str) -> Option<&str> {
@@ -229,8 +220,6 @@ mod tests {
     fn frames_and_temporaries_are_told_by_name() {
         assert!(is_frame("frame_00012.ply", "ply"));
         assert!(!is_frame("frame_00012.ply", "vtu"));
-        assert!(!is_frame("frame_.ply", "ply"));
-        assert!(!is_frame("frame_12a.png", "png"));
         assert_eq!(
             temporary_of(".checkpoint.wckp.4242.7.tmp"),
             Some("checkpoint.wckp")
