@@ -824,11 +824,12 @@ impl Saver<'_> {
             || (minutes > 0.0 && self.last_written.elapsed().as_secs_f64() >= minutes * 60.0)
     }
 
-    /// Flushes the outputs and checkpoints the engine's committed state.
+    /// Checkpoints the engine's committed state with where each output
+    /// file stands ([`RunOutputs::cursors`] makes their lines durable first).
     fn save<E: Executor>(
         &mut self,
         engine: &Engine<E>,
-        outputs: &mut RunOutputs,
+        outputs: &RunOutputs,
     ) -> anyhow::Result<CheckpointRef> {
         let ck = Checkpoint {
             weft_version: env!("CARGO_PKG_VERSION").into(),
