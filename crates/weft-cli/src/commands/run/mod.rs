@@ -67,7 +67,8 @@ pub const EXIT_STATUS_HELP: &str = "\
 Exit status:
   0         the run reached its end time
   1         an error: bad input, or a failure during the run (DIR/manifest.json then says
-            \"failed\", with the error; `--resume DIR` continues from the last checkpoint)
+            \"failed\", with the error; after a failed write, `--resume DIR` continues from the
+            last checkpoint once the cause is removed)
   2         a command-line usage error
   75        stopped early with a checkpoint by --stop-after, SIGINT, SIGTERM or SIGUSR1:
             continue with `weft run --resume DIR` (a job script can requeue on 75)
@@ -683,11 +684,11 @@ fn step_to_end<E: Executor>(
 /// Records in the manifest that the run failed with `e` and returns the error
 /// to report: an engine error as it is (its own advice, its type kept; with a
 /// note when the manifest could not record it), any other failure with how to
-/// go on from the last checkpoint. At the rollback cap the engine is back at the window start (the
-/// last commit): that state is kept for a reproduction and checkpointed. Any
-/// other failure (an engine error, a write that failed) checkpoints nothing:
-/// the outputs may lag the engine, and the last good checkpoint stays the one
-/// to resume from.
+/// go on from the last checkpoint. At the rollback cap the engine is back at
+/// the window start (the last commit): that state is kept for a reproduction
+/// and checkpointed. Any other failure (an engine error, a write that failed)
+/// checkpoints nothing: the outputs may lag the engine, and the last good
+/// checkpoint stays the one to resume from.
 fn record_failure<E: Executor>(
     e: anyhow::Error,
     engine: &Engine<E>,
