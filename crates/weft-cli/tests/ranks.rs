@@ -10,7 +10,7 @@ use std::path::Path;
 use std::process::Output;
 
 mod common;
-use common::{repo, resume, weft, SMALL_CRUMPLE};
+use common::{resume, small_crumple};
 
 /// The summary line of a run that reached its end — the only line: only
 /// rank 0 prints.
@@ -49,13 +49,7 @@ fn outputs(out: &Path) -> BTreeMap<String, Vec<u8>> {
 }
 
 fn run_small(out: &Path, extra: &[&str]) -> Output {
-    weft()
-        .arg("run")
-        .arg(repo().join("scenes/crumple.toml"))
-        .arg("--out")
-        .arg(out)
-        .args(SMALL_CRUMPLE)
-        .args(extra)
+    small_crumple(out, extra, None)
         .args(["--quiet", "--no-preview"])
         .output()
         .expect("weft runs")
@@ -112,6 +106,7 @@ fn bad_rank_counts_are_refused() {
 /// MPI ranks under `mpirun` (one test at a time: the `mpi` nextest group).
 #[cfg(feature = "mpi")]
 mod mpi {
+    use super::common::repo;
     use super::*;
     use std::process::Command;
     use std::time::{Duration, Instant};

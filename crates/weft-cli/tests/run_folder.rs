@@ -8,25 +8,13 @@ use std::path::Path;
 use std::process::Output;
 
 mod common;
-use common::{repo, summary, weft, SMALL_CRUMPLE};
+use common::{small_crumple, stderr, summary};
 
 fn run(out: &Path, extra: &[&str], failpoint: Option<&str>) -> Output {
-    let mut c = weft();
-    c.arg("run")
-        .arg(repo().join("scenes/crumple.toml"))
-        .arg("--out")
-        .arg(out)
-        .args(SMALL_CRUMPLE)
-        .args(extra)
-        .arg("--quiet");
-    if let Some(f) = failpoint {
-        c.env("WEFT_FAILPOINT", f);
-    }
-    c.output().expect("weft runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    small_crumple(out, extra, failpoint)
+        .arg("--quiet")
+        .output()
+        .expect("weft runs")
 }
 
 /// Every file under `dir`, relative to it, with its bytes.
