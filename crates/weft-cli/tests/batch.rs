@@ -4,24 +4,13 @@
 //! front, and frames never faster than windows.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Command;
 
 mod common;
-use common::{repo, stopped_summary, summary, weft, SMALL_CRUMPLE};
+use common::{repo, small_crumple, stderr, stopped_summary, summary, weft};
 
 fn crumple(out: &Path, extra: &[&str]) -> Command {
-    let mut c = weft();
-    c.arg("run")
-        .arg(repo().join("scenes/crumple.toml"))
-        .arg("--out")
-        .arg(out)
-        .args(SMALL_CRUMPLE)
-        .args(extra);
-    c
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    small_crumple(out, extra, None)
 }
 
 fn lines(path: &Path) -> Vec<serde_json::Value> {

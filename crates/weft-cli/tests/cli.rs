@@ -284,6 +284,33 @@ fn bad_meshes_are_refused_naming_file_and_element() {
     }
 }
 
+/// A mesh validation error is printed once, in the file's own numbering: the
+/// 0-based text of the underlying `MeshError` is not appended as a cause.
+#[test]
+fn check_prints_a_mesh_error_once_in_the_files_numbering() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.obj");
+    // Line 6 is a face that repeats a vertex.
+    std::fs::write(
+        &bad,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 2\n",
+    )
+    .unwrap();
+    let c = weft(&["check", bad.to_str().unwrap()]);
+    assert_eq!(c.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&c.stderr);
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("error:"))
+        .expect("an error line");
+    assert!(
+        line.contains("bad.obj:6: the face on line 6 (v 2, v 4, v 2) repeats a vertex"),
+        "{err}"
+    );
+    assert_eq!(line.matches("repeats a vertex").count(), 1, "{err}");
+    assert!(!line.contains("0-based"), "{err}");
+}
+
 /// Initially intersecting geometry is refused, naming the triangles.
 #[test]
 fn intersecting_initial_state_is_refused() {

@@ -10,7 +10,7 @@ use std::path::Path;
 use std::process::Output;
 
 mod common;
-use common::{repo, resume, weft, SMALL_CRUMPLE};
+use common::{resume, small_crumple};
 
 /// The summary line of a run that reached its end — the only line: only
 /// rank 0 prints.
@@ -49,13 +49,7 @@ fn outputs(out: &Path) -> BTreeMap<String, Vec<u8>> {
 }
 
 fn run_small(out: &Path, extra: &[&str]) -> Output {
-    weft()
-        .arg("run")
-        .arg(repo().join("scenes/crumple.toml"))
-        .arg("--out")
-        .arg(out)
-        .args(SMALL_CRUMPLE)
-        .args(extra)
+    small_crumple(out, extra, None)
         .args(["--quiet", "--no-preview"])
         .output()
         .expect("weft runs")
@@ -112,6 +106,7 @@ fn bad_rank_counts_are_refused() {
 /// MPI ranks under `mpirun` (one test at a time: the `mpi` nextest group).
 #[cfg(feature = "mpi")]
 mod mpi {
+    use super::common::repo;
     use super::*;
     use std::process::Command;
     use std::time::{Duration, Instant};
@@ -133,14 +128,22 @@ mod mpi {
     /// `mpirun -n ranks weft ARGS…` with what OpenMPI needs in a container,
     /// as root and with more ranks than cores.
     fn mpirun(ranks: usize) -> Command {
+        mpirun_with_failpoint(ranks, None)
+    }
+
+    /// [`mpirun`] with `WEFT_FAILPOINT` set to `failpoint` on every rank.
+    fn mpirun_with_failpoint(ranks: usize, failpoint: Option<&str>) -> Command {
         let mut c = Command::new("mpirun");
         c.args(["-n", &ranks.to_string(), "--bind-to", "none"])
             .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
             .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
             .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
             .env("OMPI_MCA_btl_vader_single_copy_mechanism", "none")
-            .env_remove("WEFT_FAILPOINT")
-            .arg(env!("CARGO_BIN_EXE_weft"));
+            .env_remove("WEFT_FAILPOINT");
+        if let Some(f) = failpoint {
+            c.arg("-x").arg(format!("WEFT_FAILPOINT={f}"));
+        }
+        c.arg(env!("CARGO_BIN_EXE_weft"));
         c
     }
 
@@ -250,6 +253,32 @@ mod mpi {
         let errors = err.lines().filter(|l| l.starts_with("error:")).count();
         assert_eq!(errors, 1, "one error line:\n{err}");
         assert!(err.contains("checkpoint.wckp"), "{err}");
+        assert!(!err.contains("MPI_ABORT"), "no abort needed:\n{err}");
+    }
+
+    /// An engine error is the same on every rank, so it ends the job with one
+    /// error line and exit status 1, not an abort — also when rank 0 cannot
+    /// record it in the manifest (the note it adds keeps the error's type).
+    #[test]
+    fn mpi_engine_error_the_manifest_cannot_record_is_one_error_without_abort() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut c = mpirun_with_failpoint(2, Some("write:manifest:failed@1"));
+        c.arg("run")
+            .arg(repo().join("scenes/crumple.toml"))
+            .arg("--out")
+            .arg(dir.path())
+            .args(FIXTURE)
+            .args(["--set", "contact.max_rollbacks=0"])
+            .args(["--threads", "1", "--quiet", "--no-preview"]);
+        let o = output_within(c, Duration::from_secs(120));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        let errors: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+        assert_eq!(errors.len(), 1, "one error line:\n{err}");
+        assert!(
+            errors[0].contains("rollbacks") && errors[0].contains("manifest failed too"),
+            "{err}"
+        );
         assert!(!err.contains("MPI_ABORT"), "no abort needed:\n{err}");
     }
 

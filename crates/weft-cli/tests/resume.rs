@@ -12,25 +12,21 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{repo, resume, stopped_summary, summary, weft, SMALL_CRUMPLE};
+use common::{resume, small_crumple, stderr, stopped_summary, summary, weft};
 
 /// The small `crumple`, writing PLY and VTK frames.
 const FORMATS: &[&str] = &["--set", "output.formats=[\"ply\",\"vtk\"]"];
 
+/// The small `crumple` with [`FORMATS`], then `extra`, quiet and without a
+/// preview.
+fn crumple(out: &Path, failpoint: Option<&str>, extra: &[&str]) -> Command {
+    let mut c = small_crumple(out, &[FORMATS, extra].concat(), failpoint);
+    c.args(["--quiet", "--no-preview"]);
+    c
+}
+
 fn fresh_run(out: &Path, failpoint: Option<&str>, extra: &[&str]) -> Output {
-    let mut c = weft();
-    c.arg("run")
-        .arg(repo().join("scenes/crumple.toml"))
-        .arg("--out")
-        .arg(out)
-        .args(SMALL_CRUMPLE)
-        .args(FORMATS)
-        .args(extra)
-        .args(["--quiet", "--no-preview"]);
-    if let Some(f) = failpoint {
-        c.env("WEFT_FAILPOINT", f);
-    }
-    c.output().expect("weft runs")
+    crumple(out, failpoint, extra).output().expect("weft runs")
 }
 
 /// Every file whose bytes a resume must reproduce.
@@ -356,14 +352,7 @@ fn wait_for_checkpoint(out: &Path, child: &mut std::process::Child, window: u64)
 }
 
 fn spawn_run(out: &Path) -> std::process::Child {
-    weft()
-        .arg("run")
-        .arg(repo().join("scenes/crumple.toml"))
-        .arg("--out")
-        .arg(out)
-        .args(SMALL_CRUMPLE)
-        .args(FORMATS)
-        .args(["--quiet", "--no-preview"])
+    crumple(out, None, &[])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -440,10 +429,6 @@ fn a_resume_removes_the_temporaries_of_writes_a_kill_interrupted() {
     }
     let s = summary(&resume(dir.path(), &[]));
     assert_same_as_reference(dir.path(), &s);
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
 /// A finished fixture run to damage.
@@ -524,6 +509,35 @@ fn refusals_without_a_checkpoint_or_over_an_existing_run() {
     let o = resume(dir.path(), &[]);
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("no checkpoint"), "{}", stderr(&o));
+}
+
+/// An engine error that the manifest cannot record either is reported as
+/// itself, with its own advice and a note about the manifest: not "remove the
+/// cause, then --resume", since a resume would hit the rollback cap again.
+#[test]
+fn an_engine_error_the_manifest_cannot_record_keeps_its_own_advice() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = fresh_run(
+        dir.path(),
+        Some("write:manifest:failed@1"),
+        &["--set", "contact.max_rollbacks=0"],
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let err = stderr(&o);
+    assert!(
+        err.contains("rollbacks") && err.contains("raise contact.max_rollbacks"),
+        "{err}"
+    );
+    assert!(
+        err.contains("recording that in the manifest failed too")
+            && err.contains("manifest.json: No space left on device"),
+        "{err}"
+    );
+    assert!(
+        !err.contains("remove the cause") && !err.contains("--resume"),
+        "{err}"
+    );
+    assert_eq!(manifest(dir.path())["status"], "running");
 }
 
 /// Hitting the rollback cap stops the run with an error naming the stencil,

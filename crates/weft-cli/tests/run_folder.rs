@@ -8,25 +8,13 @@ use std::path::Path;
 use std::process::Output;
 
 mod common;
-use common::{repo, summary, weft, SMALL_CRUMPLE};
+use common::{small_crumple, stderr, summary};
 
 fn run(out: &Path, extra: &[&str], failpoint: Option<&str>) -> Output {
-    let mut c = weft();
-    c.arg("run")
-        .arg(repo().join("scenes/crumple.toml"))
-        .arg("--out")
-        .arg(out)
-        .args(SMALL_CRUMPLE)
-        .args(extra)
-        .arg("--quiet");
-    if let Some(f) = failpoint {
-        c.env("WEFT_FAILPOINT", f);
-    }
-    c.output().expect("weft runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    small_crumple(out, extra, failpoint)
+        .arg("--quiet")
+        .output()
+        .expect("weft runs")
 }
 
 /// Every file under `dir`, relative to it, with its bytes.
@@ -149,6 +137,58 @@ fn overwrite_removes_only_the_files_the_earlier_run_wrote() {
             && !stderr(&o).contains("--resume"),
         "no round in circles: {}",
         stderr(&o)
+    );
+}
+
+/// `--overwrite` into a folder that holds an earlier run's outputs but no
+/// manifest (it was lost, or removed by hand): the files named as a run's
+/// outputs are removed first — the fixed names and frames in every frame
+/// folder — so no stale checkpoint or frame passes for the new run's. What
+/// is not named as a run's output stays.
+#[test]
+fn overwrite_without_a_manifest_removes_the_files_named_as_a_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path();
+    for folder in ["frames", "frames-obj", "frames-vtk"] {
+        std::fs::create_dir(out.join(folder)).unwrap();
+    }
+    let stale = [
+        "checkpoint.wckp",
+        "frames.pvd",
+        "preview.gif",
+        "frames/frame_00500.ply",
+        "frames-obj/frame_00000.obj",
+        "frames-vtk/frame_00003.vtu",
+    ];
+    for f in stale {
+        std::fs::write(out.join(f), "stale").unwrap();
+    }
+    std::fs::write(out.join("notes.txt"), "my notes").unwrap();
+    std::fs::write(out.join("frames/README"), "about these frames").unwrap();
+
+    // A run that stops before its first checkpoint, writing PLY frames only.
+    let o = run(
+        out,
+        &[
+            "--overwrite",
+            "--no-preview",
+            "--set",
+            "output.checkpoint_every=0",
+            "--set",
+            "output.checkpoint_minutes=0",
+        ],
+        Some("mid-window@2"),
+    );
+    assert_eq!(o.status.code(), Some(weft_sim::failpoint::EXIT_CODE));
+    let files = tree(out);
+    for f in stale {
+        assert!(!files.contains_key(f), "{f} of the earlier run is left");
+    }
+    assert_eq!(files["notes.txt"], b"my notes");
+    assert_eq!(files["frames/README"], b"about these frames");
+    assert!(
+        files.contains_key("frames/frame_00000.ply"),
+        "the new run's frame"
     );
 }
 

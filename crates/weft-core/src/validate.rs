@@ -87,7 +87,9 @@ pub enum MeshError {
     /// [`DEGENERATE_AREA_REL`] times the square of the mesh's extent `extent`
     /// (its bounding-box diagonal): lost in the rounding of coordinates that
     /// large. `far_vertex` (at `far_position`) is the vertex farthest from the
-    /// triangle: the usual culprit is a stray vertex.
+    /// triangle's first corner (`vertices[0]`; the triangle is tiny next to
+    /// the extent, so that is about as far from the whole triangle): the
+    /// usual culprit is a stray vertex.
     TooSmallForExtent {
         triangle: usize,
         vertices: [u32; 3],
@@ -185,12 +187,14 @@ impl MeshError {
                 "{} ({}) has an area of {area:.3e} m², too small to resolve in a mesh \
                  {extent:.3e} m across (below {:.3e} m², areas are lost in the rounding of its \
                  coordinates; this triangle needs the mesh to span at most {:.3e} m). The \
-                 farthest vertex from it is {} at ({:e}, {:e}, {:e}): delete it if it is a stray \
-                 vertex; if the mesh is really that large, its units are wrong (weft uses metres)",
+                 vertex farthest from its corner {} is {} at ({:e}, {:e}, {:e}): delete it if it \
+                 is a stray vertex; if the mesh is really that large, its units are wrong (weft \
+                 uses metres)",
                 names.triangle(*triangle),
                 names.vertices(vertices),
                 DEGENERATE_AREA_REL * extent * extent,
                 (area / DEGENERATE_AREA_REL).sqrt(),
+                names.vertex(vertices[0]),
                 names.vertex(*far_vertex),
                 far_position.x,
                 far_position.y,
@@ -376,7 +380,8 @@ fn check_areas(mesh: &TriMesh) -> Result<(), MeshError> {
                 longest_edge,
             });
         }
-        // The vertex farthest from the triangle (the first of equals).
+        // The vertex farthest from the triangle's first corner (the first of
+        // equals).
         let far_vertex = mesh
             .positions
             .iter()

@@ -11,6 +11,9 @@
 //! every decision is an exact `orient2d` sign on those points, so the checks
 //! below and the clipping never contradict one another.
 //!
+//! A polygon of more than [`MAX_CORNERS`] corners is refused: the checks
+//! and the ear search below take time quadratic in the corners.
+//!
 //! A polygon is refused, not guessed at, when it has no area (collinear
 //! corners), two consecutive corners coincide, it folds back on itself at a
 //! corner, or two of its edges cross or touch. A strictly convex polygon is
@@ -44,7 +47,15 @@ pub enum PolygonError {
     /// No ear was found (a numerically degenerate polygon; not expected for
     /// the simple polygons that pass the checks).
     NoEar,
+    /// The polygon has more than [`MAX_CORNERS`] corners: its checks and
+    /// ear clipping take time quadratic in the corners (a face of 50,000
+    /// would take minutes), so it is refused at once.
+    TooManyCorners { corners: usize },
 }
+
+/// The most corners [`triangulate`] takes: at this size its quadratic
+/// simplicity check and ear search take some 10 ms.
+pub const MAX_CORNERS: usize = 1000;
 
 impl PolygonError {
     /// A message for the user; `corner(k)` names corner `k` (e.g. `v 12`).
@@ -72,6 +83,11 @@ impl PolygonError {
             Self::NoEar => "no ear could be clipped (the polygon is numerically degenerate); \
                  split it into triangles"
                 .into(),
+            Self::TooManyCorners { corners } => format!(
+                "weft triangulates polygons of at most {MAX_CORNERS} corners, and this one has \
+                 {corners}; triangulate it in the program that wrote the file, or split it into \
+                 smaller polygons"
+            ),
         }
     }
 }
@@ -79,11 +95,15 @@ impl PolygonError {
 /// Triangulates the polygon with corners `corners` (in boundary order, at least
 /// 3): `n - 2` triangles as indices into `corners`, oriented like the polygon.
 /// A triangle (3 corners) is returned as it is, even if degenerate: mesh
-/// validation reports it with its own words.
+/// validation reports it with its own words. A polygon of more than
+/// [`MAX_CORNERS`] corners is refused.
 pub fn triangulate(corners: &[DVec3]) -> Result<Vec<[usize; 3]>, PolygonError> {
     let n = corners.len();
     if n <= 3 {
         return Ok(if n == 3 { vec![[0, 1, 2]] } else { Vec::new() });
+    }
+    if n > MAX_CORNERS {
+        return Err(PolygonError::TooManyCorners { corners: n });
     }
     let p = project(corners)?;
     check_simple(corners, &p)?;
@@ -152,7 +172,8 @@ fn check_simple(corners: &[DVec3], p: &[[f64; 2]]) -> Result<(), PolygonError> {
         }
     }
     // Every pair of edges that share no corner (closed segments: touching
-    // counts). Polygons from files are small, so the quadratic scan is cheap.
+    // counts). Polygons are at most MAX_CORNERS, so the quadratic scan is
+    // cheap.
     for i in 0..n {
         for j in i + 2..n {
             if i == 0 && j == n - 1 {

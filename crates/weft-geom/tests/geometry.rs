@@ -1746,6 +1746,18 @@ mod polygon {
             PolygonError::SelfIntersecting { .. }
         ));
         assert_eq!(e(&[[0, 0], [2, 0], [4, 0], [6, 0]]), PolygonError::ZeroArea);
+        // Too many corners for the quadratic checks: refused before them.
+        let circle: Vec<DVec3> = (0..1001)
+            .map(|k| {
+                let a = k as f64 / 1001.0 * std::f64::consts::TAU;
+                DVec3::new(a.cos(), a.sin(), 0.0)
+            })
+            .collect();
+        assert_eq!(
+            triangulate(&circle),
+            Err(PolygonError::TooManyCorners { corners: 1001 })
+        );
+        assert_eq!(triangulate(&circle[..1000]).map(|t| t.len()), Ok(998));
         // A symmetric bow tie: its two loops cancel.
         assert_eq!(e(&[[0, 0], [4, 4], [4, 0], [0, 4]]), PolygonError::ZeroArea);
         assert_eq!(

@@ -39,9 +39,11 @@ pub enum IoError {
     Mesh {
         path: PathBuf,
         line: Option<usize>,
+        /// The validation error in the mesh's 0-based ids. Not the error's
+        /// `source`: `message` already says the same in the file's
+        /// numbering, and a chain printer would print it a second time.
         /// Boxed: it is large, and every I/O result carries this type.
-        #[source]
-        source: Box<MeshError>,
+        mesh: Box<MeshError>,
         message: String,
     },
     /// The file's extension names no format weft reads.

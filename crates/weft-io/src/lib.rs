@@ -139,11 +139,11 @@ pub fn read_mesh(path: &Path) -> Result<MeshFile, IoError> {
     };
     match weft_core::validate(&file.mesh) {
         Ok(warnings) => Ok(MeshFile { warnings, ..file }),
-        Err(source) => Err(IoError::Mesh {
+        Err(mesh) => Err(IoError::Mesh {
             path: path.to_path_buf(),
-            line: source.triangle().and_then(|f| file.line_of_triangle(f)),
-            message: source.describe(&file.names()),
-            source: Box::new(source),
+            line: mesh.triangle().and_then(|f| file.line_of_triangle(f)),
+            message: mesh.describe(&file.names()),
+            mesh: Box::new(mesh),
         }),
     }
 }

@@ -87,6 +87,9 @@ struct Parser {
     seen_face: bool,
     num_normals: usize,
     objects: Vec<ObjObject>,
+    /// The current face's corners (vertex, texture), kept between faces so
+    /// that reading a face allocates nothing.
+    corners: Vec<(u32, Option<u32>)>,
 }
 
 impl Parser {
@@ -132,7 +135,8 @@ impl Parser {
         tokens: impl Iterator<Item = &'a str>,
         line: usize,
     ) -> Result<(), String> {
-        let mut corners: Vec<(u32, Option<u32>)> = Vec::new();
+        let mut corners = std::mem::take(&mut self.corners);
+        corners.clear();
         for tok in tokens {
             corners.push(self.corner(tok)?);
         }
@@ -146,33 +150,47 @@ impl Parser {
             self.seen_face = true;
             self.all_faces_have_uvs = true;
         }
-        let face_uvs: Option<Vec<u32>> = corners.iter().map(|c| c.1).collect();
-        self.all_faces_have_uvs &= face_uvs.is_some();
-        let triangles = match corners.len() {
-            // Most faces: no polygon to triangulate.
-            3 => vec![[0, 1, 2]],
-            n => {
-                let positions: Vec<DVec3> = corners
-                    .iter()
-                    .map(|c| self.positions[c.0 as usize])
-                    .collect();
-                weft_geom::polygon::triangulate(&positions).map_err(|e| {
-                    format!(
-                        "the face with {n} corners cannot be triangulated: {}",
-                        e.describe(&|k| format!("v {}", corners[k].0 + 1))
-                    )
-                })?
-            }
-        };
-        for [a, b, c] in triangles {
-            self.triangles
-                .push([corners[a].0, corners[b].0, corners[c].0]);
-            self.face_lines.push(line);
-            if let Some(t) = &face_uvs {
-                self.face_uvs.push([t[a], t[b], t[c]]);
+        let has_uvs = corners.iter().all(|c| c.1.is_some());
+        self.all_faces_have_uvs &= has_uvs;
+        if corners.len() == 3 {
+            // Most faces: no polygon to triangulate, nothing to allocate.
+            self.push_triangle(&corners, [0, 1, 2], has_uvs, line);
+        } else {
+            let positions: Vec<DVec3> = corners
+                .iter()
+                .map(|c| self.positions[c.0 as usize])
+                .collect();
+            let triangles = weft_geom::polygon::triangulate(&positions).map_err(|e| {
+                format!(
+                    "the face with {} corners cannot be triangulated: {}",
+                    corners.len(),
+                    e.describe(&|k| format!("v {}", corners[k].0 + 1))
+                )
+            })?;
+            for t in triangles {
+                self.push_triangle(&corners, t, has_uvs, line);
             }
         }
+        self.corners = corners;
         Ok(())
+    }
+
+    /// Adds the triangle of face corners `[a, b, c]` read on `line`, with its
+    /// texture indices when the face has them.
+    fn push_triangle(
+        &mut self,
+        corners: &[(u32, Option<u32>)],
+        [a, b, c]: [usize; 3],
+        has_uvs: bool,
+        line: usize,
+    ) {
+        self.triangles
+            .push([corners[a].0, corners[b].0, corners[c].0]);
+        self.face_lines.push(line);
+        if has_uvs {
+            let uv = |k: usize| corners[k].1.expect("every corner has a texture index");
+            self.face_uvs.push([uv(a), uv(b), uv(c)]);
+        }
     }
 
     /// Parses one face corner `v`, `v/t`, `v//n` or `v/t/n` into 0-based

@@ -743,9 +743,9 @@ mod read_mesh_validation {
             e,
             IoError::Mesh {
                 line: Some(8),
-                ref source,
+                ref mesh,
                 ..
-            } if matches!(**source, MeshError::DegenerateTriangle { triangle: 1, .. })
+            } if matches!(**mesh, MeshError::DegenerateTriangle { triangle: 1, .. })
         ));
         let msg = e.to_string();
         // Elements as the file numbers them: OBJ `v` numbers, faces by line.
@@ -799,10 +799,10 @@ mod read_mesh_validation {
             matches!(
                 e,
                 IoError::Mesh {
-                    ref source,
+                    ref mesh,
                     line: None,
                     ..
-                } if **source == MeshError::Empty
+                } if **mesh == MeshError::Empty
             ),
             "{e}"
         );
@@ -917,6 +917,46 @@ mod import {
         );
     }
 
+    /// Triangulating a polygon takes time quadratic in its corners (the
+    /// simplicity check, the ear search): a face of 50,000 corners took about
+    /// a minute. Faces above 1,000 corners are refused at once, naming the
+    /// line and the count; 1,000 corners still triangulate.
+    #[test]
+    fn a_face_with_too_many_corners_is_refused_at_once() {
+        let obj = |n: usize| {
+            let mut s = String::new();
+            for k in 0..n {
+                let a = k as f64 / n as f64 * std::f64::consts::TAU;
+                s += &format!("v {} {} 0\n", a.cos(), a.sin());
+            }
+            s += "f";
+            for k in 1..=n {
+                s += &format!(" {k}");
+            }
+            s + "\n"
+        };
+        let started = std::time::Instant::now();
+        let e = obj_err(
+            &obj(50_000),
+            &[
+                "bad.obj:50001:",
+                "the face with 50000 corners cannot be triangulated",
+                "at most 1000 corners",
+            ],
+        );
+        assert!(matches!(
+            e,
+            IoError::Parse {
+                line: Some(50_001),
+                ..
+            }
+        ));
+        obj_err(&obj(1001), &["bad.obj:1002:", "1001 corners"]);
+        assert!(started.elapsed().as_secs() < 10, "{:?}", started.elapsed());
+        let d = parse_obj(&obj(1000), Path::new("ok.obj")).unwrap();
+        assert_eq!(d.mesh.num_triangles(), 998);
+    }
+
     #[test]
     fn ply_polygons_are_ear_clipped_and_refused_alike() {
         let ply = |vertices: &str, faces: &str, count: usize| {
@@ -957,8 +997,8 @@ mod import {
         assert!(
             matches!(
                 e,
-                IoError::Mesh { ref source, .. }
-                    if matches!(**source, MeshError::TooSmallForExtent { far_vertex: 1939, .. })
+                IoError::Mesh { ref mesh, .. }
+                    if matches!(**mesh, MeshError::TooSmallForExtent { far_vertex: 1939, .. })
             ),
             "{msg}"
         );

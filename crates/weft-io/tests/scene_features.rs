@@ -817,6 +817,49 @@ fn an_unwelded_cloth_is_refused_with_the_count_and_the_first_places() {
     );
 }
 
+/// A welded cloth with a stray duplicate of one of its vertices that no
+/// triangle uses (a common export leftover, which validation only warns
+/// about) is not an unwelded mesh: the triangles are joined. It loads, with
+/// the warning about the unused vertex.
+#[test]
+fn an_unused_duplicate_vertex_is_not_an_unwelded_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    write(
+        dir.path(),
+        "stray.obj",
+        "v 0 0.5 0\nv 0.1 0.5 0\nv 0.1 0.5 0.1\nv 0 0.5 0.1\nv 0.1 0.5 0.1\nf 1 2 3\nf 1 3 4\n",
+    );
+    let s = load(
+        dir.path(),
+        "version = 1\n[[cloth]]\nname = \"c\"\nmesh = \"stray.obj\"\n",
+        &[],
+    )
+    .unwrap_or_else(|e| panic!("refused: {e}"));
+    assert_eq!(s.warnings.len(), 1, "{:?}", s.warnings);
+    assert_has(&s.warnings[0], &["stray.obj", "v 5"]);
+
+    // Two used vertices on one position are still refused, and a stray
+    // there does not count as a third.
+    write(
+        dir.path(),
+        "split.obj",
+        "v 0 0.5 0\nv 0.1 0.5 0\nv 0.1 0.5 0.1\nv 0 0.5 0.1\nv 0.1 0.5 0.1\nv 0 0.5 0\n\
+         v 0 0.5 0\nf 1 2 3\nf 6 5 4\n",
+    );
+    let e = err(
+        dir.path(),
+        "version = 1\n[[cloth]]\nname = \"c\"\nmesh = \"split.obj\"\n",
+        &[],
+    );
+    assert_has(
+        &e,
+        &[
+            "split.obj: 2 vertices lie exactly on other vertices, at 2 places (v 1 = v 6; v 3 = v 5)",
+            "weld the mesh (2 coincident vertices)",
+        ],
+    );
+}
+
 #[test]
 fn mesh_warnings_are_kept_for_the_start_up_in_the_files_numbering() {
     let dir = tempfile::tempdir().unwrap();

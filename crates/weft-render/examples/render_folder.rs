@@ -36,7 +36,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         report.frames.len() as f64 / report.seconds
     );
     let t = std::time::Instant::now();
-    let plots = plot_stats(&dir, &dir.join("plots"))?;
+    let plots = plot_stats(&dir, &dir.join("plots"))?.files;
     println!(
         "{} plots in {:.3} s",
         plots.len(),

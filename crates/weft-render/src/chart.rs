@@ -3,7 +3,7 @@
 //! lines and a legend placed where it hides no curve.
 
 use crate::font::{draw_text, text_width, CAP_HEIGHT};
-use crate::image::Image;
+use crate::image::{blend, Image};
 
 /// How a series is drawn.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -191,11 +191,12 @@ pub fn draw_chart(chart: &Chart, width: u32) -> Image {
     let mut img = Image::new(width, layout.height, BACKGROUND);
     let tw = text_width(&chart.title, T) as i64;
     draw_text(&mut img, (width as i64 - tw) / 2, 16, &chart.title, T, INK);
-    for ((panel, area), legend) in chart.panels.iter().zip(&layout.areas).zip(&layout.legends) {
+    let panels = chart.panels.iter().zip(&layout.areas);
+    for (((panel, area), curves), legend) in panels.zip(&layout.curves).zip(&layout.legends) {
         let title_y = area.top - (LABEL_LINE + 8) as i64;
         draw_text(&mut img, area.left, title_y, &panel.title, S, INK);
         draw_axes(&mut img, area);
-        draw_series(&mut img, area, &panel.series);
+        curves.draw(&mut img, area);
         if let Some(r) = legend {
             draw_legend(&mut img, r, &panel.series);
         }
@@ -221,6 +222,8 @@ struct Layout {
     right: i64,
     /// Each panel's plot.
     areas: Vec<Area>,
+    /// Each panel's curves, rasterized for its plot.
+    curves: Vec<Curves>,
     /// Each panel's legend, if it has one.
     legends: Vec<Option<Rect>>,
     x_label_y: i64,
@@ -294,22 +297,22 @@ fn layout(chart: &Chart, width: u32) -> Layout {
         .iter()
         .map(|p| (p.series.len() > 1).then(|| legend_size(&p.series)))
         .collect();
-    // The free corner for each legend, found by drawing its panel's curves.
-    let free_corners = |areas: &[Area]| -> Vec<Option<Rect>> {
-        areas
-            .iter()
-            .zip(&chart.panels)
-            .zip(&legend_sizes)
-            .map(|((area, panel), size)| {
-                let mut curves = Image::new(width, height, BACKGROUND);
-                draw_series(&mut curves, area, &panel.series);
-                free_corner(&curves, area, (*size)?)
-            })
+    // Each panel's curves, rasterized once for its plot: they find the free
+    // corner for its legend, and the chart draws them.
+    let rasterize = |areas: &[Area]| -> Vec<Curves> {
+        (areas.iter().zip(&chart.panels))
+            .map(|(area, panel)| Curves::rasterize(area, &panel.series))
+            .collect()
+    };
+    let free_corners = |areas: &[Area], curves: &[Curves]| -> Vec<Option<Rect>> {
+        (areas.iter().zip(curves).zip(&legend_sizes))
+            .map(|((area, curves), size)| free_corner(curves, area, (*size)?))
             .collect()
     };
     let mut right = width as i64 - 24;
     let mut areas = areas_for(right);
-    let mut corners = free_corners(&areas);
+    let mut curves = rasterize(&areas);
+    let mut corners = free_corners(&areas, &curves);
     let crowded = |corners: &[Option<Rect>]| {
         legend_sizes
             .iter()
@@ -327,7 +330,8 @@ fn layout(chart: &Chart, width: u32) -> Layout {
             .unwrap_or(0);
         right = (right - widest - LEGEND_INSET).max(left + MIN_PLOT_WIDTH);
         areas = areas_for(right);
-        corners = free_corners(&areas);
+        curves = rasterize(&areas);
+        corners = free_corners(&areas, &curves);
     }
     let legends = legend_sizes
         .iter()
@@ -349,6 +353,7 @@ fn layout(chart: &Chart, width: u32) -> Layout {
         left,
         right,
         areas,
+        curves,
         legends,
         x_label_y: (title_block + n * panel_block) as i64,
     }
@@ -408,14 +413,66 @@ fn draw_axes(img: &mut Image, a: &Area) {
     img.fill_rect(a.right, a.top, a.right + 1, a.bottom + 1, FRAME);
 }
 
-/// Anti-aliased polyline, 2 pixels wide, clipped to the plot area. Coverage is
-/// the maximum over segments, so joints are not drawn twice darker.
-fn draw_polyline(img: &mut Image, a: &Area, points: &[(f64, f64)], color: [u8; 3]) {
-    let (w, h) = (
-        (a.right - a.left + 1) as usize,
-        (a.bottom - a.top + 1) as usize,
-    );
-    let mut cov = vec![0f32; w * h];
+/// The curves of a panel rasterized for its plot: per series in drawing
+/// order, its colour and its coverage of each pixel of the plot area
+/// (`[left, right] × [top, bottom]`, row by row).
+struct Curves {
+    /// Pixels per row of a coverage.
+    w: usize,
+    layers: Vec<([u8; 3], Vec<f32>)>,
+}
+
+impl Curves {
+    fn rasterize(a: &Area, series: &[Series]) -> Curves {
+        let (w, h) = (
+            (a.right - a.left + 1) as usize,
+            (a.bottom - a.top + 1) as usize,
+        );
+        let layers = series
+            .iter()
+            .map(|s| {
+                let mut cov = vec![0f32; w * h];
+                match s.style {
+                    Style::Line => polyline_coverage(&mut cov, w, h, a, &s.points),
+                    Style::Stems => stems_coverage(&mut cov, w, a, &s.points),
+                }
+                (s.color, cov)
+            })
+            .collect();
+        Curves { w, layers }
+    }
+
+    /// Blends each series into `img` in turn.
+    fn draw(&self, img: &mut Image, a: &Area) {
+        for (color, cov) in &self.layers {
+            for (i, &c) in cov.iter().enumerate() {
+                if c > 0.0 {
+                    let (x, y) = ((i % self.w) as i64, (i / self.w) as i64);
+                    img.blend_pixel(a.left + x, a.top + y, *color, c);
+                }
+            }
+        }
+    }
+
+    /// Whether the curves leave pixel `(x, y)` of the plot (local to its
+    /// top left corner) the background: what [`Curves::draw`] would leave
+    /// there on a blank image.
+    fn blank_at(&self, x: usize, y: usize) -> bool {
+        let i = y * self.w + x;
+        let mut pixel = BACKGROUND;
+        for (color, cov) in &self.layers {
+            if cov[i] > 0.0 {
+                pixel = blend(pixel, *color, cov[i]);
+            }
+        }
+        pixel == BACKGROUND
+    }
+}
+
+/// Anti-aliased polyline, 2 pixels wide, clipped to the plot area: its
+/// coverage of each pixel of the `w × h` plot. Coverage is the maximum over
+/// segments, so joints are not drawn twice darker.
+fn polyline_coverage(cov: &mut [f32], w: usize, h: usize, a: &Area, points: &[(f64, f64)]) {
     let to_local = |&(x, y): &(f64, f64)| (a.px(x) - a.left as f64, a.py(y) - a.top as f64);
     let half = 1.0f64;
     let mut prev: Option<(f64, f64)> = None;
@@ -451,19 +508,12 @@ fn draw_polyline(img: &mut Image, a: &Area, points: &[(f64, f64)], color: [u8; 3
             }
         }
     }
-    for y in 0..h {
-        for x in 0..w {
-            let c = cov[y * w + x];
-            if c > 0.0 {
-                img.blend_pixel(a.left + x as i64, a.top + y as i64, color, c);
-            }
-        }
-    }
 }
 
 /// One bar per point from zero (or the axis bottom) to the value, at least
-/// one pixel wide.
-fn draw_stems(img: &mut Image, a: &Area, points: &[(f64, f64)], color: [u8; 3]) {
+/// one pixel wide, inside the frame of the plot: full coverage of its pixels
+/// in the plot's `w`-pixel rows.
+fn stems_coverage(cov: &mut [f32], w: usize, a: &Area, points: &[(f64, f64)]) {
     let finite: Vec<_> = points
         .iter()
         .filter(|p| p.0.is_finite() && p.1.is_finite())
@@ -477,22 +527,10 @@ fn draw_stems(img: &mut Image, a: &Area, points: &[(f64, f64)], color: [u8; 3]) 
         let x = a.px(p.0).round() as i64 - bar / 2;
         let y = a.py(p.1).round() as i64;
         let (y0, y1) = (y.min(zero), y.max(zero));
-        img.fill_rect(
-            x.max(a.left + 1),
-            y0.max(a.top + 1),
-            (x + bar).min(a.right),
-            (y1 + 1).min(a.bottom),
-            color,
-        );
-    }
-}
-
-/// Draws each series in its style.
-fn draw_series(img: &mut Image, a: &Area, series: &[Series]) {
-    for s in series {
-        match s.style {
-            Style::Line => draw_polyline(img, a, &s.points, s.color),
-            Style::Stems => draw_stems(img, a, &s.points, s.color),
+        for gy in y0.max(a.top + 1)..(y1 + 1).min(a.bottom) {
+            for gx in x.max(a.left + 1)..(x + bar).min(a.right) {
+                cov[(gy - a.top) as usize * w + (gx - a.left) as usize] = 1.0;
+            }
         }
     }
 }
@@ -510,10 +548,10 @@ fn legend_size(series: &[Series]) -> (i64, i64) {
 }
 
 /// The first corner of plot `a` (top right, top left, bottom right, bottom
-/// left) where a legend of `size` leaves every curve in `img` (the curves
-/// alone, on the background) at least [`LEGEND_CLEARANCE`] away; `None` when curves pass through all four (or
-/// the plot is too small).
-fn free_corner(img: &Image, a: &Area, (w, h): (i64, i64)) -> Option<Rect> {
+/// left) where a legend of `size` leaves every pixel of the `curves` at
+/// least [`LEGEND_CLEARANCE`] away; `None` when curves pass through all four
+/// (or the plot is too small).
+fn free_corner(curves: &Curves, a: &Area, (w, h): (i64, i64)) -> Option<Rect> {
     let (l, r) = (a.left + LEGEND_INSET, a.right - LEGEND_INSET - w);
     let (t, b) = (a.top + LEGEND_INSET, a.bottom - LEGEND_INSET - h);
     [(r, t), (l, t), (r, b), (l, b)]
@@ -530,13 +568,20 @@ fn free_corner(img: &Image, a: &Area, (w, h): (i64, i64)) -> Option<Rect> {
                 && box_.x1 + c <= a.right
                 && box_.y0 - c > a.top
                 && box_.y1 + c <= a.bottom;
-            inside && blank(img, box_.x0 - c, box_.y0 - c, box_.x1 + c, box_.y1 + c)
+            if !inside {
+                return false;
+            }
+            // Inside the plot: local pixels of the curves.
+            let (x0, x1) = (
+                (box_.x0 - c - a.left) as usize,
+                (box_.x1 + c - a.left) as usize,
+            );
+            let (y0, y1) = (
+                (box_.y0 - c - a.top) as usize,
+                (box_.y1 + c - a.top) as usize,
+            );
+            (y0..y1).all(|y| (x0..x1).all(|x| curves.blank_at(x, y)))
         })
-}
-
-/// Whether `[x0, x1) × [y0, y1)` (inside `img`) is all background.
-fn blank(img: &Image, x0: i64, y0: i64, x1: i64, y1: i64) -> bool {
-    (y0..y1).all(|y| (x0..x1).all(|x| img.pixel(x as u32, y as u32) == BACKGROUND))
 }
 
 fn draw_legend(img: &mut Image, r: &Rect, series: &[Series]) {

@@ -51,11 +51,8 @@ impl Image {
     pub fn blend_pixel(&mut self, x: i64, y: i64, color: [u8; 3], alpha: f32) {
         if x >= 0 && y >= 0 && (x as u64) < self.width as u64 && (y as u64) < self.height as u64 {
             let i = 3 * (y as usize * self.width as usize + x as usize);
-            let a = alpha.clamp(0.0, 1.0);
-            for c in 0..3 {
-                let old = self.rgb[i + c] as f32;
-                self.rgb[i + c] = (old + (color[c] as f32 - old) * a + 0.5) as u8;
-            }
+            let old = [self.rgb[i], self.rgb[i + 1], self.rgb[i + 2]];
+            self.rgb[i..i + 3].copy_from_slice(&blend(old, color, alpha));
         }
     }
 
@@ -135,4 +132,14 @@ impl Image {
             rgb,
         })
     }
+}
+
+/// `old` mixed with `color` with weight `alpha` in `[0, 1]`, rounded: what
+/// [`Image::blend_pixel`] writes.
+pub fn blend(old: [u8; 3], color: [u8; 3], alpha: f32) -> [u8; 3] {
+    let a = alpha.clamp(0.0, 1.0);
+    std::array::from_fn(|c| {
+        let old = old[c] as f32;
+        (old + (color[c] as f32 - old) * a + 0.5) as u8
+    })
 }

@@ -8,7 +8,8 @@
 //!   `DIR/preview.mp4` through `ffmpeg` when it is installed, or an animated
 //!   `DIR/preview.gif` otherwise (or both into [`RenderOptions::out`]);
 //! * [`plot_stats`] draws `stats.jsonl` and `timing.jsonl` as PNG line charts
-//!   (energy, momentum, contacts, wall time);
+//!   (energy, momentum, contacts, wall time), also while the run is still
+//!   writing them;
 //! * the pieces are public for other uses: [`Rasterizer`] (a z-buffered,
 //!   supersampled software rasterizer with two-sided Lambert shading),
 //!   [`Camera`] (perspective look-at, and [`Camera::fit`] to a bounding box),
@@ -35,6 +36,7 @@ pub mod error;
 mod files;
 pub mod font;
 pub mod image;
+mod json_lines;
 pub mod plot;
 pub mod preview;
 pub mod raster;
@@ -44,8 +46,10 @@ pub mod run_folder;
 pub use camera::Camera;
 pub use error::RenderError;
 pub use image::Image;
-pub use plot::plot_stats;
+pub use plot::{plot_stats, PlotReport};
 pub use preview::{ffmpeg_available, VideoMode};
 pub use raster::{Rasterizer, Surface};
-pub use render::{render_run, RenderOptions, RenderReport};
+pub use render::{
+    is_frame, render_run, RenderOptions, RenderReport, PREVIEW_GIF, PREVIEW_MP4, RENDER_FOLDER,
+};
 pub use run_folder::{FrameEntry, FrameMesh, ObjectRange, RunFolder};

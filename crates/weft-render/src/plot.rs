@@ -2,6 +2,7 @@
 
 use crate::chart::{draw_chart, Chart, Panel, Series, Style, COLORS};
 use crate::error::RenderError;
+use crate::json_lines;
 use serde::de::DeserializeOwned;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -11,7 +12,7 @@ use weft_sim::{WindowStats, WindowTiming};
 pub const CHART_WIDTH: u32 = 1000;
 
 /// Writes PNG line charts of a run's diagnostics into `out_dir` (created if
-/// missing) and returns their paths:
+/// missing) and returns their paths, with any warnings ([`PlotReport`]):
 ///
 /// * `energy.png`: kinetic, potential, contact and total (kinetic +
 ///   potential) energy against simulated time;
@@ -22,16 +23,18 @@ pub const CHART_WIDTH: u32 = 1000;
 ///   (events, broad, narrow, commit), only when `timing.jsonl` is present.
 ///
 /// `input` is a run folder (its `stats.jsonl` and `timing.jsonl` are read) or
-/// a stats file (a `timing.jsonl` beside it is read if present). Errors name
-/// the file and, for a malformed line, the line.
-pub fn plot_stats(input: &Path, out_dir: &Path) -> Result<Vec<PathBuf>, RenderError> {
+/// a stats file (a `timing.jsonl` beside it is read if present). A run still
+/// writing them reads too: an incomplete last line is skipped, with a
+/// warning. Errors name the file and, for a malformed line, the line.
+pub fn plot_stats(input: &Path, out_dir: &Path) -> Result<PlotReport, RenderError> {
     let (stats_path, timing_path) = if input.is_dir() {
         (input.join("stats.jsonl"), input.join("timing.jsonl"))
     } else {
         let dir = input.parent().unwrap_or(Path::new(""));
         (input.to_path_buf(), dir.join("timing.jsonl"))
     };
-    let stats: Vec<WindowStats> = read_lines(&stats_path)?;
+    let mut warnings = Vec::new();
+    let stats: Vec<WindowStats> = read_lines(&stats_path, &mut warnings)?;
     if stats.is_empty() {
         return Err(RenderError::format(
             &stats_path,
@@ -40,7 +43,7 @@ pub fn plot_stats(input: &Path, out_dir: &Path) -> Result<Vec<PathBuf>, RenderEr
         ));
     }
     let timing: Option<Vec<WindowTiming>> = if timing_path.is_file() {
-        Some(read_lines(&timing_path)?)
+        Some(read_lines(&timing_path, &mut warnings)?)
     } else {
         None
     };
@@ -54,27 +57,36 @@ pub fn plot_stats(input: &Path, out_dir: &Path) -> Result<Vec<PathBuf>, RenderEr
     if let Some(t) = &timing {
         charts.push(("time.png", time_chart(&stats, t)));
     }
-    let mut written = Vec::new();
+    let mut files = Vec::new();
     for (name, chart) in charts {
         let path = out_dir.join(name);
         draw_chart(&chart, CHART_WIDTH).write_png(&path)?;
-        written.push(path);
+        files.push(path);
     }
-    Ok(written)
+    Ok(PlotReport { files, warnings })
 }
 
-/// Parses a JSON-lines file; blank lines are skipped.
-fn read_lines<T: DeserializeOwned>(path: &Path) -> Result<Vec<T>, RenderError> {
-    let text = std::fs::read_to_string(path).map_err(|e| RenderError::io(path, e))?;
-    text.lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| {
-            serde_json::from_str(l).map_err(|e| {
-                RenderError::format(path, Some(i + 1), format!("malformed record: {e}"))
-            })
-        })
-        .collect()
+/// The records of a JSON-lines file; a skipped incomplete last line goes to
+/// `warnings`.
+fn read_lines<T: DeserializeOwned>(
+    path: &Path,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<T>, RenderError> {
+    let lines = json_lines::read(path, "record")?;
+    if let Some(line) = lines.incomplete_last_line {
+        warnings.push(json_lines::incomplete_warning(path, line));
+    }
+    Ok(lines.into_records())
+}
+
+/// What [`plot_stats`] wrote.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlotReport {
+    /// The charts, in the order [`plot_stats`] lists them.
+    pub files: Vec<PathBuf>,
+    /// What the user should know although the plot succeeded: an incomplete
+    /// last line skipped (a run still writing it).
+    pub warnings: Vec<String>,
 }
 
 fn series(name: &str, k: usize, points: Vec<(f64, f64)>, style: Style) -> Series {

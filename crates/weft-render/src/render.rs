@@ -18,6 +18,29 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver};
 use std::time::Instant;
 
+/// The folder of a run folder the PNG frames go to by default.
+pub const RENDER_FOLDER: &str = "render";
+/// The MP4 preview's name (in the run folder by default).
+pub const PREVIEW_MP4: &str = "preview.mp4";
+/// The GIF preview's name (in the run folder by default).
+pub const PREVIEW_GIF: &str = "preview.gif";
+
+/// Whether `name` is a frame file `frame_NNNNN.EXT` with extension `ext` (any
+/// number of digits): the rendered PNGs and `weft run`'s frame files alike.
+///
+/// ```
+/// use weft_render::is_frame;
+/// assert!(is_frame("frame_00012.png", "png"));
+/// assert!(!is_frame("frame_00012.png", "ply"));
+/// assert!(!is_frame("frame_.png", "png") && !is_frame("frame_12a.png", "png"));
+/// ```
+pub fn is_frame(name: &str, ext: &str) -> bool {
+    name.strip_prefix("frame_")
+        .and_then(|r| r.strip_suffix(ext))
+        .and_then(|r| r.strip_suffix('.'))
+        .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
+}
+
 /// Frame rate of the preview when `frames.jsonl` implies none (one frame).
 pub const DEFAULT_FPS: f64 = 24.0;
 /// Largest accepted image side, in pixels.
@@ -186,7 +209,7 @@ pub fn render_run(dir: &Path, opts: &RenderOptions) -> Result<RenderReport, Rend
     });
     let (out_dir, preview_dir) = match &opts.out {
         Some(out) => (out.clone(), out.clone()),
-        None => (dir.join("render"), dir.to_path_buf()),
+        None => (dir.join(RENDER_FOLDER), dir.to_path_buf()),
     };
     std::fs::create_dir_all(&out_dir).map_err(|e| RenderError::io(&out_dir, e))?;
     std::fs::create_dir_all(&preview_dir).map_err(|e| RenderError::io(&preview_dir, e))?;
@@ -198,13 +221,13 @@ pub fn render_run(dir: &Path, opts: &RenderOptions) -> Result<RenderReport, Rend
     };
     let mut warnings = Vec::new();
     if let Some(line) = run.incomplete_last_line {
-        warnings.push(format!(
-            "{}:{line}: skipped an incomplete last line (is the run still writing it?)",
-            dir.join("frames.jsonl").display()
+        warnings.push(crate::json_lines::incomplete_warning(
+            &dir.join("frames.jsonl"),
+            line,
         ));
     }
-    let gif_path = preview_dir.join("preview.gif");
-    let mp4_path = preview_dir.join("preview.mp4");
+    let gif_path = preview_dir.join(PREVIEW_GIF);
+    let mp4_path = preview_dir.join(PREVIEW_MP4);
     let mut gif = match &palette {
         Some(p) => Some(GifWriter::create(&gif_path, opts.width, opts.height, p)?),
         None => None,
@@ -526,12 +549,7 @@ fn earlier_frames(out_dir: &Path, written: &[PathBuf]) -> Vec<PathBuf> {
         .flatten()
         .filter(|e| {
             let name = e.file_name();
-            let is_frame = name
-                .to_str()
-                .and_then(|n| n.strip_prefix("frame_"))
-                .and_then(|r| r.strip_suffix(".png"))
-                .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()));
-            is_frame && !written.contains(name.as_os_str())
+            name.to_str().is_some_and(|n| is_frame(n, "png")) && !written.contains(name.as_os_str())
         })
         .map(|e| e.path())
         .collect();

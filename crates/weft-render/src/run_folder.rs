@@ -86,33 +86,14 @@ impl RunFolder {
                 RenderError::io(&frames_path, e)
             }
         })?;
-        let mut frames = Vec::new();
-        let mut incomplete_last_line = None;
-        let lines: Vec<&str> = text.lines().collect();
-        for (i, line) in lines.iter().enumerate() {
-            if line.trim().is_empty() {
-                continue;
-            }
-            let entry: FrameEntry = match serde_json::from_str(line) {
-                Ok(entry) => entry,
-                // A run appends a line per frame: the last one may be cut
-                // off mid-write while it runs. Only a whole line is an error.
-                Err(_) if i + 1 == lines.len() && !text.ends_with('\n') => {
-                    incomplete_last_line = Some(i + 1);
-                    continue;
-                }
-                Err(e) => {
-                    return Err(RenderError::format(
-                        &frames_path,
-                        Some(i + 1),
-                        format!("malformed frame record: {e}"),
-                    ))
-                }
-            };
+        let lines = crate::json_lines::parse::<FrameEntry>(&frames_path, &text, "frame record")?;
+        let incomplete_last_line = lines.incomplete_last_line;
+        let mut frames = Vec::with_capacity(lines.records.len());
+        for (line, entry) in lines.records {
             if entry.file.is_empty() || !entry.time.is_finite() {
                 return Err(RenderError::format(
                     &frames_path,
-                    Some(i + 1),
+                    Some(line),
                     "frame record needs a file name and a finite time".into(),
                 ));
             }

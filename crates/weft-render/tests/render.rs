@@ -748,7 +748,7 @@ fn plots_are_drawn_from_stats_and_timing() {
     let dir = tempfile::tempdir().unwrap();
     write_stats(dir.path(), 60);
     let out = dir.path().join("plots");
-    let files = plot_stats(dir.path(), &out).unwrap();
+    let files = plot_stats(dir.path(), &out).unwrap().files;
     let names: Vec<String> = files
         .iter()
         .map(|f| f.file_name().unwrap().to_string_lossy().into_owned())
@@ -777,8 +777,40 @@ fn plots_are_drawn_from_stats_and_timing() {
 
     // A stats file as input, without timing beside it: three charts.
     std::fs::remove_file(dir.path().join("timing.jsonl")).unwrap();
-    let files = plot_stats(&dir.path().join("stats.jsonl"), &out).unwrap();
+    let files = plot_stats(&dir.path().join("stats.jsonl"), &out)
+        .unwrap()
+        .files;
     assert_eq!(files.len(), 3);
+}
+
+/// A run in progress may be cut off mid-line in `stats.jsonl` and
+/// `timing.jsonl`: the torn last line is skipped with a warning, as `weft
+/// render` does for `frames.jsonl`, and the whole lines are plotted.
+#[test]
+fn plots_are_drawn_from_a_run_still_writing_its_stats() {
+    let dir = tempfile::tempdir().unwrap();
+    write_stats(dir.path(), 5);
+    for (name, torn) in [
+        ("stats.jsonl", "{\"window\":5,\"time\":0.06,\"ti"),
+        ("timing.jsonl", "{\"window\":5,\"wall_sec"),
+    ] {
+        let path = dir.path().join(name);
+        let text = std::fs::read_to_string(&path).unwrap() + torn;
+        std::fs::write(&path, text).unwrap();
+    }
+    let report = plot_stats(dir.path(), &dir.path().join("plots")).unwrap();
+    assert_eq!(report.files.len(), 4);
+    assert_eq!(report.warnings.len(), 2, "{:?}", report.warnings);
+    for (w, name) in report
+        .warnings
+        .iter()
+        .zip(["stats.jsonl:6:", "timing.jsonl:6:"])
+    {
+        assert!(
+            w.contains(name) && w.contains("incomplete last line"),
+            "{w}"
+        );
+    }
 }
 
 #[test]

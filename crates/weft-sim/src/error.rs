@@ -90,7 +90,8 @@ pub enum SimError {
         /// Passes of the window that ended in a non-finite value.
         blown_up: u32,
     },
-    /// A stencil needs a layer deeper than the tick lattice resolves.
+    /// A stencil that already has every layer the tick lattice resolves was
+    /// reported again: it needs layer `depth` (one past `resolved`).
     #[error(
         "window starting at t = {time:.6} s: {pair} needs layer {depth}, deeper than the \
          {resolved} layers whose steps h_l = h_1 l^(-3/2) the tick lattice resolves (at least \

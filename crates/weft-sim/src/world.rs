@@ -349,7 +349,7 @@ impl World {
             partitioning.count,
         )
         .map_err(|(f, e)| {
-            let object = (objects.iter()).find(|o| o.triangles.contains(&f));
+            let object = object_of_triangle(&objects, f);
             SimError::Material {
                 object: object.map_or("?".into(), |o| o.name.clone()),
                 source: e.in_object(object.map_or(0, |o| o.vertices.start)),
@@ -719,8 +719,13 @@ fn place_of(objects: &[ObjectInfo], i: u32) -> Place {
     )
 }
 
+/// The object triangle `f` belongs to.
+fn object_of_triangle(objects: &[ObjectInfo], f: u32) -> Option<&ObjectInfo> {
+    objects.iter().find(|o| o.triangles.contains(&f))
+}
+
 fn place_of_triangle(objects: &[ObjectInfo], f: u32) -> Place {
-    objects.iter().find(|o| o.triangles.contains(&f)).map_or(
+    object_of_triangle(objects, f).map_or(
         Place {
             object: "?".into(),
             local: f,

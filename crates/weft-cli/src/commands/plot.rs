@@ -25,10 +25,13 @@ pub fn run(args: PlotArgs) -> anyhow::Result<ExitCode> {
             .parent()
             .map_or_else(|| PathBuf::from("plots"), |p| p.join("plots")),
     };
-    let files = weft_render::plot_stats(&args.input, &out)
+    let report = weft_render::plot_stats(&args.input, &out)
         .with_context(|| format!("cannot plot {}", args.input.display()))?;
-    for f in files {
+    for f in &report.files {
         println!("wrote {}", f.display());
+    }
+    for w in &report.warnings {
+        eprintln!("warning: {w}");
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -32,6 +32,28 @@ pub const SMALL_CRUMPLE: &[&str] = &[
     "output.frame_rate=60",
 ];
 
+/// `weft run scenes/crumple.toml --out OUT` with [`SMALL_CRUMPLE`], then
+/// `extra`, with `WEFT_FAILPOINT=failpoint` when one is given: the run the
+/// end-to-end tests start.
+pub fn small_crumple(out: &Path, extra: &[&str], failpoint: Option<&str>) -> Command {
+    let mut c = weft();
+    c.arg("run")
+        .arg(repo().join("scenes/crumple.toml"))
+        .arg("--out")
+        .arg(out)
+        .args(SMALL_CRUMPLE)
+        .args(extra);
+    if let Some(f) = failpoint {
+        c.env("WEFT_FAILPOINT", f);
+    }
+    c
+}
+
+/// A finished command's standard error as text.
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
 /// `weft run --resume out EXTRA… --quiet --no-preview`.
 pub fn resume(out: &Path, extra: &[&str]) -> Output {
     weft()

@@ -15,14 +15,38 @@ use super::{invalid, SceneError};
 /// steps. Contacts add more (about `W / h_1 · Σ l^1.5` breakpoints per vertex
 /// in a contact of depth D). What `weft info` reports.
 pub fn estimated_bytes(vertices: u64, stretch: u64, hinges: u64, steps_per_window: u64) -> u64 {
-    let (n, stretch, hinges) = (vertices as u128, stretch as u128, hinges as u128);
-    // x, v and tau (3 f64 each), mass, flags and clock per vertex.
-    let state = n * (3 * 24 + 8 + 16);
-    // An output slot (a 3-vector) per element corner: 3 per stretch element,
-    // 4 per hinge; 48 bytes of rest data per element.
-    let forces = (3 * stretch + 4 * hinges) * 24 + (stretch + hinges) * 48;
-    let trajectories = n * (steps_per_window as u128 + 2) * BYTES_PER_BREAKPOINT as u128;
-    u64::try_from(state + forces + trajectories).unwrap_or(u64::MAX)
+    let e = Estimate::new(vertices, stretch, hinges, steps_per_window);
+    u64::try_from(e.mesh + e.trajectories).unwrap_or(u64::MAX)
+}
+
+/// [`estimated_bytes`] by term.
+struct Estimate {
+    /// The state and internal forces: what the mesh needs whatever the window.
+    mesh: u128,
+    /// One window of internal-clock breakpoints: `vertices ×
+    /// (steps_per_window + 2)` of them.
+    trajectories: u128,
+}
+
+impl Estimate {
+    fn new(vertices: u64, stretch: u64, hinges: u64, steps_per_window: u64) -> Self {
+        let (n, stretch, hinges) = (vertices as u128, stretch as u128, hinges as u128);
+        // x, v and tau (3 f64 each), mass, flags and clock per vertex.
+        let state = n * (3 * 24 + 8 + 16);
+        // An output slot (a 3-vector) per element corner: 3 per stretch
+        // element, 4 per hinge; 48 bytes of rest data per element.
+        let forces = (3 * stretch + 4 * hinges) * 24 + (stretch + hinges) * 48;
+        let trajectories = n * (steps_per_window as u128 + 2) * BYTES_PER_BREAKPOINT as u128;
+        Self {
+            mesh: state + forces,
+            trajectories,
+        }
+    }
+}
+
+/// `bytes` (saturated to `u64`) as [`human_bytes`] writes it.
+fn human_u128(bytes: u128) -> String {
+    human_bytes(u64::try_from(bytes).unwrap_or(u64::MAX))
 }
 
 /// The most memory a scene may ask for.
@@ -117,17 +141,31 @@ impl MemoryBudget {
             false => (0.0, 0.0),
         };
         // `as u64` saturates: a count beyond u64 is refused all the same.
-        let need = estimated_bytes(
+        let estimate = Estimate::new(
             (self.vertices + vertices) as u64,
             (self.stretch + stretch) as u64,
             (self.hinges + hinges) as u64,
             self.steps_per_window,
         );
+        let need = u64::try_from(estimate.mesh + estimate.trajectories).unwrap_or(u64::MAX);
         if need > self.limit.bytes {
             let rest = if self.vertices > 0.0 {
                 " with the objects before it"
             } else {
                 ""
+            };
+            let (mesh, window) = (human_u128(estimate.mesh), human_u128(estimate.trajectories));
+            let spw = self.steps_per_window;
+            // What to lower: the mesh when it alone does not fit; else the
+            // window's breakpoints are what push it over.
+            let advice = if estimate.mesh > self.limit.bytes as u128 {
+                format!("the state and internal forces alone need {mesh}: lower it")
+            } else {
+                format!(
+                    "the state and internal forces need {mesh}, one window's trajectory \
+                     breakpoints ({spw} internal steps) {window}: shorten the window \
+                     (time.steps_per_window or time.window), or lower it"
+                )
             };
             return Err(invalid(
                 path,
@@ -135,9 +173,8 @@ impl MemoryBudget {
                 format!(
                     "{source} makes {vertices:.0} vertices and {triangles:.0} triangles: the \
                      run would need at least {} ({need} bytes) of memory{rest} for windows of \
-                     {} internal steps, more than {}; lower it",
+                     {spw} internal steps, more than {}; {advice}",
                     human_bytes(need),
-                    self.steps_per_window,
                     self.limit.what
                 ),
             ));
@@ -178,5 +215,39 @@ mod tests {
             "{e}"
         );
         b.admit(p, "c", "c", 400.0, 0.0, false).unwrap();
+    }
+
+    /// The refusal says which term to lower: the mesh when it alone does not
+    /// fit, else the window whose breakpoints push it over.
+    #[test]
+    fn a_refusal_names_the_term_that_does_not_fit() {
+        let p = Path::new("s.toml");
+        let limit = MemoryLimit {
+            bytes: estimated_bytes(1000, 2000, 3000, 100),
+            what: "the test limit".into(),
+        };
+        // Too many vertices even for one-step windows.
+        let e = MemoryBudget::new(limit.clone(), 1)
+            .admit(p, "k", "k", 1e6, 2e6, true)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("the state and internal forces alone need") && e.ends_with("lower it"),
+            "{e}"
+        );
+        assert!(!e.contains("steps_per_window"), "{e}");
+        // The same mesh fits with windows of 100 steps, not of 10^6.
+        MemoryBudget::new(limit.clone(), 100)
+            .admit(p, "k", "k", 1000.0, 2000.0, true)
+            .unwrap();
+        let e = MemoryBudget::new(limit, 1_000_000)
+            .admit(p, "k", "k", 1000.0, 2000.0, true)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("one window's trajectory breakpoints (1000000 internal steps) 32.0 GB")
+                && e.contains("shorten the window (time.steps_per_window or time.window)"),
+            "{e}"
+        );
     }
 }

@@ -357,14 +357,31 @@ const LISTED_PLACES: usize = 4;
 
 /// Refuses a cloth mesh with vertices at exactly the same position: an
 /// unwelded mesh (one vertex per triangle corner, as some exporters write)
-/// holds together nowhere and starts in contact with itself everywhere.
+/// holds together nowhere and starts in contact with itself everywhere. Only
+/// vertices a triangle uses count: a stray duplicate no triangle uses (an
+/// export leftover validation warns about) joins nothing apart.
 fn refuse_unwelded(
     m: &crate::MeshFile,
     scene: &Path,
     key: &str,
     file: &str,
 ) -> Result<(), SceneError> {
-    let groups = weft_core::coincident::coincident_vertices(&m.mesh.positions);
+    let mut used = vec![false; m.mesh.positions.len()];
+    for t in &m.mesh.triangles {
+        for &v in t {
+            used[v as usize] = true;
+        }
+    }
+    let mut groups: Vec<Vec<u32>> = weft_core::coincident::coincident_vertices(&m.mesh.positions)
+        .into_iter()
+        .map(|g| {
+            g.into_iter()
+                .filter(|&v| used[v as usize])
+                .collect::<Vec<_>>()
+        })
+        .filter(|g| g.len() > 1)
+        .collect();
+    groups.sort_unstable_by_key(|g| g[0]);
     if groups.is_empty() {
         return Ok(());
     }

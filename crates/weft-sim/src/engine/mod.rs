@@ -323,6 +323,9 @@ impl<E: Executor> Engine<E> {
         let mut blown_up = 0u32;
         let mut confirmed = 0u64;
         let mut stages = StageSeconds::default();
+        // The deepest layer a stencil may get (about 30 `pow` calls: once
+        // per window, not per rollback).
+        let resolved = self.world.schedule.resolved_depth();
         loop {
             let clock = Instant::now();
             let events_span = trace::span_with("events", "pass", rollbacks as u64);
@@ -420,21 +423,23 @@ impl<E: Executor> Engine<E> {
             confirmed += reported.len() as u64;
             // Roll back: restore the state, keep (and extend) the layers.
             snap.restore(&mut self.world);
+            // Each reported stencil gets `layers_per_detection` more layers,
+            // or as many as remain down to the deepest resolved one; only a
+            // stencil already there has none left to get.
             let extra = self.world.contact.layers_per_detection;
-            let resolved = self.world.schedule.resolved_depth();
             for key in &reported {
-                let depth = self.world.layers.depth(key) + extra;
-                if depth > resolved {
+                let depth = self.world.layers.depth(key);
+                if depth >= resolved {
                     let w = &self.world;
                     return Err(SimError::LayerTooDeep {
                         time: w.lattice.seconds(t0),
                         key: *key,
                         pair: w.describe_stencil(key),
-                        depth,
+                        depth: depth + 1,
                         resolved,
                     });
                 }
-                self.world.layers.deepen(*key, extra);
+                self.world.layers.deepen(*key, extra.min(resolved - depth));
             }
             rollbacks += 1;
             let so_far = self.totals.rollbacks + rollbacks as u64;

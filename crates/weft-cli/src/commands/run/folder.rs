@@ -7,12 +7,15 @@
 //! lists, rendered frames (`render/frame_NNNNN.png`), and the temporary
 //! files of writes a kill interrupted (`.NAME.PID[.N].tmp` of any of those).
 //! Anything else in the folder — a user's notes, a plot — is not weft's to
-//! remove.
+//! remove. A folder with no manifest that `--overwrite` writes into anyway
+//! loses the files named as a run's outputs (fixed names, frames in every
+//! frame folder), so none of them passes for the new run's.
 
 use std::path::Path;
 
 use anyhow::{bail, Context};
 use weft_io::scene::FrameFormat;
+use weft_render::{is_frame, PREVIEW_GIF, PREVIEW_MP4, RENDER_FOLDER};
 
 use super::manifest::{self, Manifest};
 use super::outputs::{frames_folder, FRAMES_FILE, PVD_FILE, STATS_FILE, TIMING_FILE};
@@ -27,15 +30,13 @@ const FIXED_FILES: [&str; 11] = [
     FRAMES_FILE,
     PVD_FILE,
     CHECKPOINT_FILE,
-    "preview.mp4",
-    "preview.gif",
+    PREVIEW_MP4,
+    PREVIEW_GIF,
     "repro/window_start.ply",
     "repro/window_start.json",
     manifest::FILE,
 ];
 
-/// Where the preview's PNG frames go (`weft_render::render_run`).
-const RENDER_FOLDER: &str = "render";
 const REPRO_FOLDER: &str = "repro";
 const ALL_FORMATS: [FrameFormat; 3] = [FrameFormat::Ply, FrameFormat::Obj, FrameFormat::Vtk];
 
@@ -82,8 +83,8 @@ pub fn check_fresh_out(out: &Path, overwrite: bool) -> anyhow::Result<()> {
         bail!(
             "{shown} is not empty and holds no weft run (it has no {}); choose a new or \
              empty folder, or give --overwrite to write into it anyway (files there named as \
-             a run's outputs — stats.jsonl, frames/ … — are then replaced; nothing else is \
-             touched)",
+             a run's outputs — stats.jsonl, checkpoint.wckp, frames/frame_*.ply … — are then \
+             removed first; nothing else is touched)",
             manifest::FILE
         );
     }
@@ -91,15 +92,18 @@ pub fn check_fresh_out(out: &Path, overwrite: bool) -> anyhow::Result<()> {
 }
 
 /// Removes the files of the run in `out`, as its manifest describes them, and
-/// then the run's own folders where they are left empty. Nothing happens
-/// where `out` holds no run.
+/// then the run's own folders where they are left empty. Where `out` holds no
+/// manifest (a folder `--overwrite` writes into anyway), the files named as a
+/// run's outputs are removed: the fixed names and the frames in every frame
+/// folder (not `render/`, whose PNGs only a manifest says are weft's), so no
+/// stale checkpoint or frame passes for the new run's.
 pub fn remove_previous_run(out: &Path) -> anyhow::Result<()> {
-    if !out.join(manifest::FILE).exists() {
-        return Ok(());
-    }
-    let m = Manifest::read(out)?;
-    let formats = frame_formats(&m);
-    for file in run_files(out, &formats) {
+    let (formats, with_render) = if out.join(manifest::FILE).exists() {
+        (frame_formats(&Manifest::read(out)?), true)
+    } else {
+        (ALL_FORMATS.to_vec(), false)
+    };
+    for file in run_files(out, &formats, with_render) {
         match std::fs::remove_file(&file) {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
                 return Err(e).with_context(|| {
@@ -110,7 +114,8 @@ pub fn remove_previous_run(out: &Path) -> anyhow::Result<()> {
         }
     }
     let folders = formats.iter().map(|&f| frames_folder(f));
-    for folder in folders.chain([RENDER_FOLDER, REPRO_FOLDER]) {
+    let render = with_render.then_some(RENDER_FOLDER);
+    for folder in folders.chain(render).chain([REPRO_FOLDER]) {
         // Fails, keeping it, where anything else is in it.
         let _ = std::fs::remove_dir(out.join(folder));
     }
@@ -139,8 +144,9 @@ fn frame_formats(m: &Manifest) -> Vec<FrameFormat> {
         .collect()
 }
 
-/// Every file in `out` that a run writing frames in `formats` wrote.
-fn run_files(out: &Path, formats: &[FrameFormat]) -> Vec<std::path::PathBuf> {
+/// Every file in `out` that a run writing frames in `formats` wrote, its
+/// rendered frames if `with_render`.
+fn run_files(out: &Path, formats: &[FrameFormat], with_render: bool) -> Vec<std::path::PathBuf> {
     let mut files: Vec<_> = FIXED_FILES
         .iter()
         .map(|name| out.join(name))
@@ -151,7 +157,9 @@ fn run_files(out: &Path, formats: &[FrameFormat]) -> Vec<std::path::PathBuf> {
             is_frame(n, f.extension())
         }));
     }
-    files.extend(matching(&out.join(RENDER_FOLDER), |n| is_frame(n, "png")));
+    if with_render {
+        files.extend(matching(&out.join(RENDER_FOLDER), |n| is_frame(n, "png")));
+    }
     files.extend(weft_temporaries(out, formats));
     // The manifest last: a removal cut short can be repeated.
     files.sort_by_key(|p| p.ends_with(manifest::FILE));
@@ -188,14 +196,6 @@ fn weft_temporaries(out: &Path, formats: &[FrameFormat]) -> Vec<std::path::PathB
     found
 }
 
-/// `frame_NNNNN.EXT`: a frame file (any number of digits).
-fn is_frame(name: &str, ext: &str) -> bool {
-    name.strip_prefix("frame_")
-        .and_then(|r| r.strip_suffix(ext))
-        .and_then(|r| r.strip_suffix('.'))
-        .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
-}
-
 /// The file a temporary `.NAME.PID.N.tmp` (weft-io's atomic writes) or
 /// `.NAME.PID.tmp` (weft-render's) was to become: `NAME`.
 fn temporary_of(name: &str) -> Option<&str> {
@@ -220,8 +220,6 @@ mod tests {
     fn frames_and_temporaries_are_told_by_name() {
         assert!(is_frame("frame_00012.ply", "ply"));
         assert!(!is_frame("frame_00012.ply", "vtu"));
-        assert!(!is_frame("frame_.ply", "ply"));
-        assert!(!is_frame("frame_12a.png", "png"));
         assert_eq!(
             temporary_of(".checkpoint.wckp.4242.7.tmp"),
             Some("checkpoint.wckp")

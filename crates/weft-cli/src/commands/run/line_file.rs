@@ -23,6 +23,10 @@ pub struct LineFile {
     len: u64,
     /// Lines this process appended (numbers the `write:NAME` failpoint).
     appended: u64,
+    /// `write:NAME`, the failpoint of an append (named once, not per line).
+    failpoint: String,
+    /// The line being appended with its newline, kept between appends.
+    buf: Vec<u8>,
 }
 
 impl LineFile {
@@ -56,25 +60,35 @@ impl LineFile {
     }
 
     fn new(path: &Path, file: File, len: u64) -> Self {
+        let name = path.file_name().unwrap_or_default().to_string_lossy();
         Self {
             path: path.to_path_buf(),
             file,
             len,
             appended: 0,
+            failpoint: format!("write:{name}"),
+            buf: Vec::new(),
         }
     }
 
     /// Appends `line` and a newline, whole or not at all.
     pub fn append(&mut self, line: &str) -> anyhow::Result<()> {
-        let mut bytes = Vec::with_capacity(line.len() + 1);
+        let mut bytes = std::mem::take(&mut self.buf);
+        bytes.clear();
         bytes.extend_from_slice(line.as_bytes());
         bytes.push(b'\n');
+        let result = self.write_line(&bytes);
+        self.buf = bytes;
+        result
+    }
+
+    /// Writes `bytes` (one line and its newline), cutting a partial write.
+    fn write_line(&mut self, bytes: &[u8]) -> anyhow::Result<()> {
         self.appended += 1;
-        let name = self.path.file_name().unwrap_or_default().to_string_lossy();
-        let written = match faults::injected(&format!("write:{name}"), self.appended) {
+        let written = match faults::injected(&self.failpoint, self.appended) {
             // As a disk that fills up mid-line: half of it is on disk.
             Err(e) => self.file.write_all(&bytes[..bytes.len() / 2]).and(Err(e)),
-            Ok(()) => self.file.write_all(&bytes),
+            Ok(()) => self.file.write_all(bytes),
         };
         if let Err(e) = written {
             let cut = self

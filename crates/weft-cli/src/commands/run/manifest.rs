@@ -124,8 +124,11 @@ impl Manifest {
 
     pub fn write(&mut self, dir: &Path) -> anyhow::Result<()> {
         self.updated = now_utc();
+        let path = dir.join(FILE);
+        super::faults::injected_nth(&format!("write:manifest:{}", self.status))
+            .with_context(|| format!("cannot write {}", path.display()))?;
         let text = serde_json::to_string_pretty(self)? + "\n";
-        weft_io::write_atomic(&dir.join(FILE), text.as_bytes())?;
+        weft_io::write_atomic(&path, text.as_bytes())?;
         Ok(())
     }
 }

@@ -67,7 +67,8 @@ pub const EXIT_STATUS_HELP: &str = "\
 Exit status:
   0         the run reached its end time
   1         an error: bad input, or a failure during the run (DIR/manifest.json then says
-            \"failed\", with the error; `--resume DIR` continues from the last checkpoint)
+            \"failed\", with the error; after a failed write, `--resume DIR` continues from the
+            last checkpoint once the cause is removed)
   2         a command-line usage error
   75        stopped early with a checkpoint by --stop-after, SIGINT, SIGTERM or SIGUSR1:
             continue with `weft run --resume DIR` (a job script can requeue on 75)
@@ -104,8 +105,8 @@ pub struct RunArgs {
     #[arg(long, value_name = "DURATION", value_parser = signals::parse_duration)]
     pub stop_after: Option<Duration>,
     /// Write into an --out folder that is not empty: the files an earlier run
-    /// there wrote (its manifest says which) are removed first; other files
-    /// stay, except those named as a run's outputs, which are replaced.
+    /// there wrote (its manifest says which; without one, the files named as
+    /// a run's outputs) are removed first; other files stay.
     #[arg(long)]
     pub overwrite: bool,
     /// Do not render a preview when the run completes or stops at
@@ -681,11 +682,13 @@ fn step_to_end<E: Executor>(
 }
 
 /// Records in the manifest that the run failed with `e` and returns the error
-/// to report. At the rollback cap the engine is back at the window start (the
-/// last commit): that state is kept for a reproduction and checkpointed. Any
-/// other failure (an engine error, a write that failed) checkpoints nothing:
-/// the outputs may lag the engine, and the last good checkpoint stays the one
-/// to resume from.
+/// to report: an engine error as it is (its own advice, its type kept; with a
+/// note when the manifest could not record it), any other failure with how to
+/// go on from the last checkpoint. At the rollback cap the engine is back at
+/// the window start (the last commit): that state is kept for a reproduction
+/// and checkpointed. Any other failure (an engine error, a write that failed)
+/// checkpoints nothing: the outputs may lag the engine, and the last good
+/// checkpoint stays the one to resume from.
 fn record_failure<E: Executor>(
     e: anyhow::Error,
     engine: &Engine<E>,
@@ -705,9 +708,21 @@ fn record_failure<E: Executor>(
     }
     manifest.status = "failed".into();
     manifest.error = Some(crate::error_text(&e));
-    let recorded = manifest.write(out);
-    if engine_error.is_some() && recorded.is_ok() {
-        return e;
+    // The manifest's write error names the file.
+    let recorded = manifest.write(out).map_err(|m| {
+        format!(
+            "the run failed, and recording that in the manifest failed too ({})",
+            crate::error_text(&m)
+        )
+    });
+    if engine_error.is_some() {
+        // The simulation's own error says what to change (a resume would
+        // meet it again), and it keeps its type: under MPI every rank has
+        // the same one and exits with it instead of aborting the job.
+        return match recorded {
+            Ok(()) => e,
+            Err(note) => e.context(note),
+        };
     }
     // Not the simulation's fault: say how to go on.
     let resume = match &manifest.last_checkpoint {
@@ -726,11 +741,7 @@ fn record_failure<E: Executor>(
     };
     let manifest_note = match recorded {
         Ok(()) => String::new(),
-        Err(m) => format!(
-            "; {} could not record the failure either ({})",
-            out.join(manifest::FILE).display(),
-            crate::error_text(&m)
-        ),
+        Err(note) => format!("; {note}"),
     };
     anyhow::anyhow!("{}{manifest_note}\n  {resume}", crate::error_text(&e))
 }
@@ -814,11 +825,12 @@ impl Saver<'_> {
             || (minutes > 0.0 && self.last_written.elapsed().as_secs_f64() >= minutes * 60.0)
     }
 
-    /// Flushes the outputs and checkpoints the engine's committed state.
+    /// Checkpoints the engine's committed state with where each output
+    /// file stands ([`RunOutputs::cursors`] makes their lines durable first).
     fn save<E: Executor>(
         &mut self,
         engine: &Engine<E>,
-        outputs: &mut RunOutputs,
+        outputs: &RunOutputs,
     ) -> anyhow::Result<CheckpointRef> {
         let ck = Checkpoint {
             weft_version: env!("CARGO_PKG_VERSION").into(),
