@@ -35,6 +35,9 @@ use crate::trace;
 use crate::world::World;
 use island::{Island, SegmentOutput, Shared};
 
+/// Tasks per rank that the islands of a segment are dealt to.
+const BINS_PER_RANK: usize = 16;
+
 /// Vertices per task of the per-vertex stages of an internal tick.
 const VERTEX_RUN: usize = 2048;
 
@@ -261,10 +264,10 @@ impl<E: Executor> Engine<E> {
     }
 
     /// Every island's segment `[s, e)` (and its kicks at the internal tick
-    /// `e` when `internal`), in parallel, the largest (by the seconds of its
-    /// last segment) first; over ranks each island runs on its rank and
-    /// every rank gets every result (one collective). Results in island
-    /// order.
+    /// `e` when `internal`), in parallel, in bins balanced by the seconds
+    /// each island's last segment took; over ranks each island runs on its
+    /// rank and every rank gets every result (one collective). Results in
+    /// island order.
     fn run_islands(
         &mut self,
         layer_consts: &[(f64, f64, Tick)],
@@ -276,9 +279,23 @@ impl<E: Executor> Engine<E> {
             return Ok(Vec::new());
         }
         let _span = trace::span_with("islands", "islands", n as u64);
-        let order = largest_first(&self.ws.island_cost);
-        let owner: Vec<u32> = (order.iter())
-            .map(|&k| self.ws.island_rank[k as usize])
+        // Bins of islands: each rank's islands dealt largest first (by the
+        // seconds of their last segment) to the least-loaded of its bins, so
+        // a few tasks carry the many small islands (a task per island would
+        // cost more than most islands do).
+        let ranks = self.exec.ranks();
+        let mut bins: Vec<Vec<u32>> = vec![Vec::new(); ranks * BINS_PER_RANK];
+        let mut load = vec![0.0f64; bins.len()];
+        for k in largest_first(&self.ws.island_cost) {
+            let r = self.ws.island_rank[k as usize] as usize;
+            let b = (r * BINS_PER_RANK..(r + 1) * BINS_PER_RANK)
+                .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
+                .expect("a bin");
+            load[b] += self.ws.island_cost[k as usize].max(1e-9);
+            bins[b].push(k);
+        }
+        let owner: Vec<u32> = (0..bins.len())
+            .map(|b| (b / BINS_PER_RANK) as u32)
             .collect();
         let shared = Shared {
             world: &self.world,
@@ -286,12 +303,16 @@ impl<E: Executor> Engine<E> {
             exhaustive: self.every_layer_event,
         };
         let (islands, exec) = (&self.ws.islands, &self.exec);
-        let by_cost = self.exec.map_on_ranks(n, &owner, &|k| {
-            let mut island = islands[order[k] as usize].lock().expect("an island's lock");
-            island.run_segment(exec, &shared, (s, e), internal)
+        let binned = self.exec.map_on_ranks(bins.len(), &owner, &|b| {
+            (bins[b].iter())
+                .map(|&k| {
+                    let mut island = islands[k as usize].lock().expect("an island's lock");
+                    island.run_segment(exec, &shared, (s, e), internal)
+                })
+                .collect::<Vec<_>>()
         })?;
         let mut outputs = vec![SegmentOutput::default(); n];
-        for (k, output) in order.into_iter().zip(by_cost) {
+        for (k, output) in bins.into_iter().flatten().zip(binned.into_iter().flatten()) {
             self.ws.island_cost[k as usize] = output.seconds;
             outputs[k as usize] = output;
         }
