@@ -4,7 +4,8 @@
 //! in parallel on two threads end every window in the same positions,
 //! velocities, clocks and layers as every active stencil run as one island
 //! (one batch per tick over all of them, `Engine::run_as_one_island`), with
-//! the same counts of layer evaluations, kicks and breakpoints.
+//! the same counts of layer evaluations, kicks and breakpoints; with every
+//! island alone and with the small ones packed (`Engine::set_island_packing`).
 
 use glam::DVec3;
 use weft_geom::shapes::{grid, sphere};
@@ -79,6 +80,8 @@ fn islands_on_threads_give_the_bits_of_the_global_schedule() {
         let mut global = Engine::new(world.clone(), Serial).unwrap();
         global.run_as_one_island(true);
         let mut islands = Engine::new(world, Threads::new(2).unwrap()).unwrap();
+        // Every island alone, or the small ones packed in threes.
+        islands.set_island_packing([1, 3][case % 2]);
         for w in 0..30 {
             let a = global.step_window().unwrap();
             let b = islands.step_window().unwrap();

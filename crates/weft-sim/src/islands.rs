@@ -163,6 +163,52 @@ impl Islands {
         self.len() == 0
     }
 
+    /// Consecutive islands packed into units of work: each island of at
+    /// least `min_stencils` stencils alone, the others gathered in island
+    /// order until a pack holds `min_stencils`. A pack's stencils and
+    /// vertices are the union of its islands', ascending.
+    ///
+    /// A pack runs as one island with the same bits (its islands share no
+    /// dynamic vertex, and each vertex still folds its kicks in (layer, key)
+    /// order), but costs one task and one pass over its state instead of
+    /// one per tiny island.
+    pub fn packed(&self, min_stencils: usize) -> Islands {
+        let mut packs = Islands {
+            stencil_start: vec![0],
+            vertex_start: vec![0],
+            ..Islands::default()
+        };
+        let (mut open_stencils, mut open_vertices) = (Vec::new(), Vec::new());
+        let close = |packs: &mut Islands, stencils: &mut Vec<u32>, vertices: &mut Vec<u32>| {
+            if stencils.is_empty() {
+                return;
+            }
+            stencils.sort_unstable();
+            vertices.sort_unstable();
+            packs.stencils.append(stencils);
+            packs.vertices.append(vertices);
+            packs.stencil_start.push(packs.stencils.len() as u32);
+            packs.vertex_start.push(packs.vertices.len() as u32);
+        };
+        for k in 0..self.len() {
+            let (stencils, vertices) = (self.stencils_of(k), self.vertices_of(k));
+            if stencils.len() >= min_stencils {
+                close(&mut packs, &mut stencils.to_vec(), &mut vertices.to_vec());
+                continue;
+            }
+            open_stencils.extend_from_slice(stencils);
+            open_vertices.extend_from_slice(vertices);
+            if open_stencils.len() >= min_stencils {
+                close(&mut packs, &mut open_stencils, &mut open_vertices);
+            }
+        }
+        close(&mut packs, &mut open_stencils, &mut open_vertices);
+        if packs.stencils.is_empty() {
+            return Islands::default();
+        }
+        packs
+    }
+
     /// Island `k`'s stencils: indices into the active list, ascending.
     pub fn stencils_of(&self, k: usize) -> &[u32] {
         &self.stencils[self.stencil_start[k] as usize..self.stencil_start[k + 1] as usize]

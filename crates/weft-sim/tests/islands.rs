@@ -136,3 +136,71 @@ fn merged_is_one_island_of_every_stencil() {
     assert_eq!(one.vertices_of(0), &[1, 2, 3, 4, 5, 6]);
     assert!(Islands::merged(&[], &inv_mass).is_empty());
 }
+
+/// Packs are unions of whole islands: every island in exactly one pack,
+/// stencils and vertices ascending; an island of at least the minimum alone;
+/// every pack of small islands but the last reaches the minimum.
+#[test]
+fn packs_are_unions_of_whole_islands() {
+    let mut rng = Rng(11);
+    for case in 0..200 {
+        let n = 8 + rng.below(80) as u32;
+        let inv_mass: Vec<f64> = (0..n)
+            .map(|_| {
+                if rng.uniform(0.0, 1.0) < 0.3 {
+                    0.0
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        if !inv_mass.iter().any(|&w| w > 0.0) {
+            continue;
+        }
+        let m = rng.below(60) as usize;
+        let active = random_active(&mut rng, n, m, &inv_mass);
+        let islands = Islands::build(&active, &inv_mass);
+        let min = 1 + rng.below(8) as usize;
+        let packs = islands.packed(min);
+        assert_eq!(packs.is_empty(), islands.is_empty(), "case {case}");
+        let mut island_of = vec![usize::MAX; active.len()];
+        for k in 0..islands.len() {
+            for &a in islands.stencils_of(k) {
+                island_of[a as usize] = k;
+            }
+        }
+        let mut packed = vec![false; islands.len()];
+        for p in 0..packs.len() {
+            let members: BTreeSet<usize> = (packs.stencils_of(p).iter())
+                .map(|&a| island_of[a as usize])
+                .collect();
+            let (mut stencils, mut vertices) = (Vec::new(), Vec::new());
+            for &k in &members {
+                assert!(!packed[k], "case {case}: island {k} in two packs");
+                packed[k] = true;
+                stencils.extend_from_slice(islands.stencils_of(k));
+                vertices.extend_from_slice(islands.vertices_of(k));
+            }
+            stencils.sort_unstable();
+            vertices.sort_unstable();
+            assert_eq!(packs.stencils_of(p), &stencils[..], "case {case}, pack {p}");
+            assert_eq!(packs.vertices_of(p), &vertices[..], "case {case}, pack {p}");
+            let big = (members.iter())
+                .filter(|&&k| islands.stencils_of(k).len() >= min)
+                .count();
+            match big {
+                0 => assert!(stencils.len() >= min || p + 1 == packs.len(), "case {case}"),
+                1 => assert_eq!(
+                    members.len(),
+                    1,
+                    "case {case}: a big island shares pack {p}"
+                ),
+                _ => panic!("case {case}: two big islands in pack {p}"),
+            }
+        }
+        assert!(
+            packed.iter().all(|&p| p),
+            "case {case}: every island packed"
+        );
+    }
+}

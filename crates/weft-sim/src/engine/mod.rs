@@ -94,6 +94,8 @@ pub struct Engine<E: Executor = Serial> {
     every_layer_event: bool,
     /// Run every active stencil as one island (the global schedule).
     one_island: bool,
+    /// Islands of fewer stencils run packed together (`Islands::packed`).
+    island_pack: usize,
 }
 
 /// Narrow-phase work per rank (measured task seconds, summed over passes):
@@ -140,6 +142,7 @@ impl<E: Executor> Engine<E> {
             share,
             every_layer_event: false,
             one_island: false,
+            island_pack: events::PACK_STENCILS,
         };
         engine.check_initial_state()?;
         Ok(engine)
@@ -164,6 +167,13 @@ impl<E: Executor> Engine<E> {
     /// islands reproduce bit for bit (tested); only the time differs.
     pub fn run_as_one_island(&mut self, on: bool) {
         self.one_island = on;
+    }
+
+    /// Packs the islands of fewer than `min_stencils` stencils into units of
+    /// work of about that many (default 64; 1 runs every island alone). Any
+    /// packing gives the same bits (tested); only the time differs.
+    pub fn set_island_packing(&mut self, min_stencils: usize) {
+        self.island_pack = min_stencils.max(1);
     }
 
     /// The executor.

@@ -189,11 +189,15 @@ pub(super) struct Island {
     max_depth: u32,
     dormancy: Dormancy,
     anchors: Vec<Option<Anchor>>,
-    // The vertices' state during a segment.
+    // The state during a segment of the vertices a batch of it moved
+    // (`moved`, listed in `moved_list`); the others' is the world's (read
+    // there: copying every vertex in at every segment cost more than the
+    // segment's batches of a small island).
     x: Vec<DVec3>,
     v: Vec<DVec3>,
     tau: Vec<Tick>,
     moved: Vec<bool>,
+    moved_list: Vec<u32>,
     // A batch's scratch.
     acc: Vec<DVec3>,
     is_touched: Vec<bool>,
@@ -247,6 +251,7 @@ impl Island {
             v: vec![DVec3::ZERO; n],
             tau: vec![0; n],
             moved: vec![false; n],
+            moved_list: Vec::new(),
             acc: vec![DVec3::ZERO; n],
             is_touched: vec![false; n],
             friction: FrictionClamp::new(n),
@@ -291,7 +296,6 @@ impl Island {
             && self.dormancy.next_due().is_none_or(|due| due > last);
         self.segment_end = e;
         if !idle {
-            self.gather(sh.world);
             self.run_ticks(exec, sh, s, e, &mut out);
             if internal_at_e && out.blew_up.is_none() {
                 let firing: Vec<u32> = (1..=self.max_depth)
@@ -302,12 +306,13 @@ impl Island {
                     let _ = self.batch(exec, sh, e, &firing, true, &mut out);
                 }
             }
-            for j in 0..self.vertices.len() {
-                if std::mem::take(&mut self.moved[j]) {
-                    let i = self.vertices[j];
-                    out.moved.push((i, self.x[j], self.v[j], self.tau[j]));
-                }
+            for &j in &self.moved_list {
+                let j = j as usize;
+                self.moved[j] = false;
+                let i = self.vertices[j];
+                out.moved.push((i, self.x[j], self.v[j], self.tau[j]));
             }
+            self.moved_list.clear();
         }
         if internal_at_e {
             // The internal tick changes every velocity: every stencil wakes.
@@ -315,14 +320,6 @@ impl Island {
         }
         out.seconds = clock.elapsed().as_secs_f64();
         out
-    }
-
-    /// Copies the island's vertices' state from the world.
-    fn gather(&mut self, w: &World) {
-        for (j, &i) in self.vertices.iter().enumerate() {
-            let i = i as usize;
-            (self.x[j], self.v[j], self.tau[j]) = (w.x[i], w.v[i], w.tau[i]);
-        }
     }
 
     /// The penalty-only batches at the ticks of `[s, e)` where one of the
@@ -384,22 +381,23 @@ impl Island {
     #[inline]
     fn position(&self, w: &World, local: u32, i: u32, t: Tick) -> DVec3 {
         let q = w.lattice.quantum;
-        if local == NONE {
-            let i = i as usize;
-            w.x[i] + w.v[i] * ((t - w.tau[i]) as f64 * q)
-        } else {
+        let (x, v, tau) = if local != NONE && self.moved[local as usize] {
             let j = local as usize;
-            self.x[j] + self.v[j] * ((t - self.tau[j]) as f64 * q)
-        }
+            (self.x[j], self.v[j], self.tau[j])
+        } else {
+            let i = i as usize;
+            (w.x[i], w.v[i], w.tau[i])
+        };
+        x + v * ((t - tau) as f64 * q)
     }
 
     /// Velocity of a stencil vertex (the island's, or a kinematic one's).
     #[inline]
     fn velocity(&self, w: &World, local: u32, i: u32) -> DVec3 {
-        if local == NONE {
-            w.v[i as usize]
-        } else {
+        if local != NONE && self.moved[local as usize] {
             self.v[local as usize]
+        } else {
+            w.v[i as usize]
         }
     }
 
@@ -640,15 +638,19 @@ impl Island {
             if result.is_err() {
                 continue;
             }
-            let v_new = self.v[jl] + impulse * self.inv_mass[jl];
-            if v_new != self.v[jl] {
+            let v_old = self.velocity(w, j, self.vertices[jl]);
+            let v_new = v_old + impulse * self.inv_mass[jl];
+            if v_new != v_old {
                 let x = self.position(w, j, self.vertices[jl], t);
                 if !(x.is_finite() && v_new.is_finite()) {
                     result = Err(j);
                     continue;
                 }
                 (self.x[jl], self.v[jl], self.tau[jl]) = (x, v_new, t);
-                self.moved[jl] = true;
+                if !self.moved[jl] {
+                    self.moved[jl] = true;
+                    self.moved_list.push(j);
+                }
                 self.dormancy.wake_vertex(jl);
                 out.breakpoints.push((self.vertices[jl], t, x));
             }

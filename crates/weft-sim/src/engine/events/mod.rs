@@ -38,6 +38,11 @@ use island::{Island, SegmentOutput, Shared};
 /// Tasks per rank that the islands of a segment are dealt to.
 const BINS_PER_RANK: usize = 16;
 
+/// Islands of fewer stencils are packed together (`Islands::packed`): a
+/// pack runs with the bits of its islands run apart, but each island costs
+/// a visit of its state per segment, and most islands are a stencil or two.
+pub(super) const PACK_STENCILS: usize = 64;
+
 /// Vertices per task of the per-vertex stages of an internal tick.
 const VERTEX_RUN: usize = 2048;
 
@@ -253,12 +258,14 @@ impl<E: Executor> Engine<E> {
         counts.islands = islands.len() as u64;
         counts.layer_events = (0..islands.len()).map(events_of).sum();
         counts.largest_island_layer_events = (0..islands.len()).map(events_of).max().unwrap_or(0);
+        // The units of work: the islands, the small ones packed.
+        let packs = islands.packed(self.island_pack);
         let ws = &mut self.ws;
-        ws.islands = (0..islands.len())
-            .map(|k| Mutex::new(Island::new(&islands, k, active, w)))
+        ws.islands = (0..packs.len())
+            .map(|k| Mutex::new(Island::new(&packs, k, active, w)))
             .collect();
-        ws.island_cost = (0..islands.len())
-            .map(|k| islands.stencils_of(k).len() as f64)
+        ws.island_cost = (0..packs.len())
+            .map(|k| packs.stencils_of(k).len() as f64)
             .collect();
         ws.island_rank = place_largest_first(&ws.island_cost, self.exec.ranks());
     }
@@ -304,6 +311,7 @@ impl<E: Executor> Engine<E> {
         };
         let (islands, exec) = (&self.ws.islands, &self.exec);
         let binned = self.exec.map_on_ranks(bins.len(), &owner, &|b| {
+            let _span = trace::span_with("island task", "islands", bins[b].len() as u64);
             (bins[b].iter())
                 .map(|&k| {
                     let mut island = islands[k as usize].lock().expect("an island's lock");
