@@ -113,3 +113,23 @@ fn islands_on_threads_give_the_bits_of_the_global_schedule() {
     );
     assert!(kicks > 1000, "too little contact: {kicks} kicks");
 }
+
+/// A checkpointed layer on kinematic vertices only (no broad phase makes
+/// one; a hand-edited checkpoint can) is refused by `restore`, not left to
+/// fail when the islands are built.
+#[test]
+fn restore_refuses_a_layer_of_kinematic_vertices_only() {
+    let spec = scene(&mut Rng(3), 0);
+    let world = weft_par::build_world(&spec).unwrap();
+    let mut engine = Engine::new(world, Serial).unwrap();
+    let mut state = engine.state();
+    let ball = weft_sim::layers::LayerState {
+        depth: 1,
+        calm_windows: 0,
+    };
+    state
+        .layers
+        .push((weft_core::StencilKey::vertex_face(0, [1, 2, 3]), ball));
+    let err = engine.restore(state).unwrap_err().to_string();
+    assert!(err.contains("only pinned or scripted vertices"), "{err}");
+}

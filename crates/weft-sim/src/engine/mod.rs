@@ -164,14 +164,19 @@ impl<E: Executor> Engine<E> {
 
     /// Runs every active stencil as one contact island when `on`: one batch
     /// per tick over every stencil, the global schedule of batches the
-    /// islands reproduce bit for bit (tested); only the time differs.
+    /// islands reproduce bit for bit (tested); only the time differs. A pass
+    /// that blows up (always rolled back) is the exception: it ends where
+    /// the island holding the blow-up stopped, so which layers it adds
+    /// depends on which islands ran together (ARCHITECTURE.md).
     pub fn run_as_one_island(&mut self, on: bool) {
         self.one_island = on;
     }
 
     /// Packs the islands of fewer than `min_stencils` stencils into units of
     /// work of about that many (default 64; 1 runs every island alone). Any
-    /// packing gives the same bits (tested); only the time differs.
+    /// packing gives the same bits (tested) in every pass that does not blow
+    /// up; only the time differs. (The packing depends on the active set
+    /// only, so a run's bits never depend on threads, ranks or partitions.)
     pub fn set_island_packing(&mut self, min_stencils: usize) {
         self.island_pack = min_stencils.max(1);
     }
@@ -242,6 +247,18 @@ impl<E: Executor> Engine<E> {
                 return bad(format!(
                     "active layer {key:?} (depth {}) is not a stencil of this mesh",
                     s.depth
+                ));
+            }
+            // Contact islands join stencils through their moving vertices;
+            // the broad phase never makes a stencil of kinematic ones only.
+            if key
+                .v
+                .iter()
+                .all(|&i| self.world.inv_mass[i as usize] == 0.0)
+            {
+                return bad(format!(
+                    "active layer on vertices {:?} joins only pinned or scripted vertices",
+                    key.v
                 ));
             }
             layers.insert(*key, *s);

@@ -356,9 +356,10 @@ impl Island {
                 .map(|l| at_or_after(from, l))
                 .min()
                 .unwrap_or(Tick::MAX);
-            // Stencils due to wake before that tick may raise the reach:
-            // wake them and look again from their tick.
-            if let Some(due) = dormancy.next_due().filter(|&due| due < t.min(e)) {
+            // Stencils due to wake at or before that tick may raise the
+            // reach (and add firing layers at it): wake them and look again
+            // from their tick.
+            if let Some(due) = dormancy.next_due().filter(|&due| due <= t && due < e) {
                 self.dormancy.wake_due(due.max(from));
                 from = due.max(from);
                 continue;
@@ -501,10 +502,11 @@ impl Island {
             match verdict {
                 Verdict::Doze(reach, until) => {
                     if !internal {
-                        // Certified past the segment's end, where an internal
-                        // tick wakes everything (or the pass ends): no wake
-                        // tick to keep.
-                        let until = if until >= self.segment_end {
+                        // Certified past the segment's end (the internal
+                        // batch at the end included), after which an
+                        // internal tick wakes everything (or the pass ends):
+                        // no wake tick to keep.
+                        let until = if until > self.segment_end {
                             Tick::MAX
                         } else {
                             until
