@@ -163,9 +163,9 @@ impl Islands {
         self.len() == 0
     }
 
-    /// Consecutive islands packed into units of work: each island of at
-    /// least `min_stencils` stencils alone, the others gathered in island
-    /// order until a pack holds `min_stencils`. A pack's stencils and
+    /// The islands packed into units of work: each island of at least
+    /// `min_stencils` stencils alone, the others gathered in island order
+    /// until a pack holds `min_stencils` (the last pack may hold fewer). A pack's stencils and
     /// vertices are the union of its islands', ascending.
     ///
     /// A pack runs as one island with the same bits (its islands share no
