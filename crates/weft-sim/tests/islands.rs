@@ -64,28 +64,42 @@ fn oracle(active: &[StencilKey], inv_mass: &[f64]) -> Vec<(Vec<u32>, Vec<u32>)> 
     out
 }
 
+/// A random case: 8 to 8 + `more_vertices` vertices, each kinematic with
+/// probability `kinematic_share`, and up to `max_stencils` active stencils;
+/// `None` when no vertex is dynamic.
+fn random_case(
+    rng: &mut Rng,
+    more_vertices: u64,
+    kinematic_share: f64,
+    max_stencils: u64,
+) -> Option<(Vec<StencilKey>, Vec<f64>)> {
+    let n = 8 + rng.below(more_vertices) as u32;
+    let inv_mass: Vec<f64> = (0..n)
+        .map(|_| {
+            if rng.uniform(0.0, 1.0) < kinematic_share {
+                0.0
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    if !inv_mass.iter().any(|&w| w > 0.0) {
+        return None;
+    }
+    let m = rng.below(max_stencils) as usize;
+    Some((random_active(rng, n, m, &inv_mass), inv_mass))
+}
+
 #[test]
 fn islands_are_the_connected_components_of_dynamic_vertices() {
     let mut rng = Rng(7);
     let mut sizes = BTreeSet::new();
     for case in 0..300 {
-        let n = 8 + rng.below(60) as u32;
         // Some cases with many kinematic vertices (a rod, pinned rows).
         let kinematic_share = [0.0, 0.3, 0.7][case % 3];
-        let inv_mass: Vec<f64> = (0..n)
-            .map(|_| {
-                if rng.uniform(0.0, 1.0) < kinematic_share {
-                    0.0
-                } else {
-                    1.0
-                }
-            })
-            .collect();
-        if !inv_mass.iter().any(|&w| w > 0.0) {
+        let Some((active, inv_mass)) = random_case(&mut rng, 60, kinematic_share, 40) else {
             continue;
-        }
-        let m = rng.below(40) as usize;
-        let active = random_active(&mut rng, n, m, &inv_mass);
+        };
         let islands = Islands::build(&active, &inv_mass);
         let expected = oracle(&active, &inv_mass);
         assert_eq!(islands.len(), expected.len(), "case {case}");
@@ -144,21 +158,9 @@ fn merged_is_one_island_of_every_stencil() {
 fn packs_are_unions_of_whole_islands() {
     let mut rng = Rng(11);
     for case in 0..200 {
-        let n = 8 + rng.below(80) as u32;
-        let inv_mass: Vec<f64> = (0..n)
-            .map(|_| {
-                if rng.uniform(0.0, 1.0) < 0.3 {
-                    0.0
-                } else {
-                    1.0
-                }
-            })
-            .collect();
-        if !inv_mass.iter().any(|&w| w > 0.0) {
+        let Some((active, inv_mass)) = random_case(&mut rng, 80, 0.3, 60) else {
             continue;
-        }
-        let m = rng.below(60) as usize;
-        let active = random_active(&mut rng, n, m, &inv_mass);
+        };
         let islands = Islands::build(&active, &inv_mass);
         let min = 1 + rng.below(8) as usize;
         let packs = islands.packed(min);
