@@ -13,9 +13,9 @@
 //! ```
 //!
 //! Its stages, each in a module of its own: the events of a pass
-//! ([`events`]: internal ticks and penalty-layer batches, trajectories), the
-//! broad phase ([`crate::broad`]), the narrow phase ([`narrow`]) and the
-//! commit ([`commit`]: retiring layers).
+//! (`events/`: internal ticks, contact islands and their penalty-layer
+//! batches, trajectories), the broad phase ([`crate::broad`]), the narrow
+//! phase (`narrow.rs`) and the commit (`commit.rs`: retiring layers).
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
