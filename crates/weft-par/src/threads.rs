@@ -72,6 +72,10 @@ impl Executor for Threads {
     fn name(&self) -> String {
         format!("threads({})", self.threads())
     }
+
+    fn threads_per_rank(&self) -> usize {
+        self.threads()
+    }
 }
 
 #[cfg(test)]

@@ -59,6 +59,11 @@ pub trait Executor: Sync {
         1
     }
 
+    /// How many threads run [`Executor::map`]'s tasks on this rank.
+    fn threads_per_rank(&self) -> usize {
+        1
+    }
+
     /// This rank, `0..ranks()`.
     fn rank(&self) -> usize {
         0

@@ -92,6 +92,10 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         self.local.map(n, f)
     }
 
+    fn threads_per_rank(&self) -> usize {
+        self.local.threads_per_rank()
+    }
+
     fn name(&self) -> String {
         format!(
             "rank {} of {} ({})",
