@@ -10,6 +10,17 @@ use std::process::Output;
 mod common;
 use common::{small_crumple, stderr, summary};
 
+/// Replaces the folder's run with one that writes PLY frames only and no
+/// checkpoint on a schedule (so one killed early has none).
+const NO_SCHEDULE: [&str; 6] = [
+    "--overwrite",
+    "--no-preview",
+    "--set",
+    "output.checkpoint_every=0",
+    "--set",
+    "output.checkpoint_minutes=0",
+];
+
 fn run(out: &Path, extra: &[&str], failpoint: Option<&str>) -> Output {
     small_crumple(out, extra, failpoint)
         .arg("--quiet")
@@ -93,15 +104,7 @@ fn overwrite_removes_only_the_files_the_earlier_run_wrote() {
 
     // Replaced by a run that stops before its first checkpoint (PLY only,
     // no checkpoints on a schedule, killed in window 2).
-    let no_schedule = [
-        "--overwrite",
-        "--no-preview",
-        "--set",
-        "output.checkpoint_every=0",
-        "--set",
-        "output.checkpoint_minutes=0",
-    ];
-    let o = run(out, &no_schedule, Some("mid-window@2"));
+    let o = run(out, &NO_SCHEDULE, Some("mid-window@2"));
     assert_eq!(o.status.code(), Some(weft_sim::failpoint::EXIT_CODE));
     let files = tree(out);
     let names: Vec<&str> = files.keys().map(String::as_str).collect();
@@ -167,18 +170,7 @@ fn overwrite_without_a_manifest_removes_the_files_named_as_a_runs() {
     std::fs::write(out.join("frames/README"), "about these frames").unwrap();
 
     // A run that stops before its first checkpoint, writing PLY frames only.
-    let o = run(
-        out,
-        &[
-            "--overwrite",
-            "--no-preview",
-            "--set",
-            "output.checkpoint_every=0",
-            "--set",
-            "output.checkpoint_minutes=0",
-        ],
-        Some("mid-window@2"),
-    );
+    let o = run(out, &NO_SCHEDULE, Some("mid-window@2"));
     assert_eq!(o.status.code(), Some(weft_sim::failpoint::EXIT_CODE));
     let files = tree(out);
     for f in stale {

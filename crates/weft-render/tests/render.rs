@@ -139,6 +139,14 @@ fn write_stats(dir: &Path, windows: usize) {
     std::fs::write(dir.join("timing.jsonl"), timing).unwrap();
 }
 
+/// `gif_opts` without a video: the frames only.
+fn frames_only_opts() -> RenderOptions {
+    RenderOptions {
+        video: VideoMode::None,
+        ..gif_opts()
+    }
+}
+
 fn gif_opts() -> RenderOptions {
     RenderOptions {
         width: 160,
@@ -381,8 +389,7 @@ fn a_second_render_overwrites_its_frames_and_keeps_the_others() {
     std::fs::write(render.join("frame_00000.png"), b"old").unwrap();
     let opts = RenderOptions {
         every: 3,
-        video: VideoMode::None,
-        ..gif_opts()
+        ..frames_only_opts()
     };
     let report = render_run(dir.path(), &opts).unwrap();
     assert_eq!(report.preview, None);
@@ -417,14 +424,7 @@ fn a_second_render_overwrites_its_frames_and_keeps_the_others() {
     let text = std::fs::read_to_string(&frames).unwrap();
     let first3: String = text.lines().take(3).map(|l| format!("{l}\n")).collect();
     std::fs::write(&frames, first3).unwrap();
-    let report = render_run(
-        dir.path(),
-        &RenderOptions {
-            video: VideoMode::None,
-            ..gif_opts()
-        },
-    )
-    .unwrap();
+    let report = render_run(dir.path(), &frames_only_opts()).unwrap();
     assert_eq!(report.frames, frame_pngs(&render, &[0, 1, 2]));
     assert_eq!(report.earlier_frames, frame_pngs(&render, &[3, 4, 5, 6]));
     assert!(
@@ -479,10 +479,7 @@ fn a_run_still_writing_frames_jsonl_renders_its_complete_frames() {
     let mut text = std::fs::read_to_string(&frames).unwrap();
     text.push_str("{\"frame\":4,\"file\":\"frames/frame_000");
     std::fs::write(&frames, &text).unwrap();
-    let opts = RenderOptions {
-        video: VideoMode::None,
-        ..gif_opts()
-    };
+    let opts = frames_only_opts();
     let report = render_run(dir.path(), &opts).unwrap();
     assert_eq!(report.frames.len(), 4);
     assert!(
@@ -577,14 +574,7 @@ fn a_run_without_objects_json_is_all_cloth() {
     let dir = tempfile::tempdir().unwrap();
     write_run(dir.path(), 1, 10);
     std::fs::remove_file(dir.path().join("objects.json")).unwrap();
-    let report = render_run(
-        dir.path(),
-        &RenderOptions {
-            video: VideoMode::None,
-            ..gif_opts()
-        },
-    )
-    .unwrap();
+    let report = render_run(dir.path(), &frames_only_opts()).unwrap();
     let img = Image::read_png(&report.frames[0]).unwrap();
     let grey = img
         .rgb
@@ -661,8 +651,7 @@ fn each_cloth_gets_its_own_colour() {
             up: DVec3::Y,
             fov_y_degrees: 40.0,
         }),
-        video: VideoMode::None,
-        ..gif_opts()
+        ..frames_only_opts()
     };
     let report = render_run(dir.path(), &opts).unwrap();
     let img = Image::read_png(&report.frames[0]).unwrap();
@@ -678,10 +667,7 @@ fn each_cloth_gets_its_own_colour() {
 #[test]
 fn errors_name_the_file_and_line() {
     let dir = tempfile::tempdir().unwrap();
-    let opts = RenderOptions {
-        video: VideoMode::None,
-        ..gif_opts()
-    };
+    let opts = frames_only_opts();
     let missing = dir.path().join("nothing-here");
     let e = render_run(&missing, &opts).unwrap_err().to_string();
     assert!(
