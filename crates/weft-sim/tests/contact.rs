@@ -474,6 +474,18 @@ fn fire(name: &str, target: TriMesh, top: f64, projectile: TriMesh, speed: f64) 
     );
 }
 
+/// A 2 cm square sheet of `n` × `n` vertices, 1 cm above the origin, in the
+/// xy plane (the cloth of the input-checking tests).
+fn small_sheet(n: usize) -> TriMesh {
+    grid(
+        DVec3::new(0.0, 0.0, 0.01),
+        DVec3::X,
+        DVec3::Y,
+        [0.02, 0.02],
+        [n, n],
+    )
+}
+
 #[test]
 fn triangle_fired_at_100_m_s_bounces_off_a_fixed_triangle() {
     fire(
@@ -1442,13 +1454,7 @@ fn build_err(s: &WorldSpec) -> SimError {
 
 #[test]
 fn non_finite_initial_velocity_is_refused() {
-    let g = grid(
-        DVec3::new(0.0, 0.0, 0.01),
-        DVec3::X,
-        DVec3::Y,
-        [0.02, 0.02],
-        [3, 3],
-    );
+    let g = small_sheet(3);
     let mut c = cloth("shirt", g, DVec3::ZERO);
     if let ObjectKind::Cloth { velocity, .. } = &mut c.kind {
         velocity[4] = DVec3::new(0.0, f64::NAN, 0.0);
@@ -1463,17 +1469,7 @@ fn non_finite_initial_velocity_is_refused() {
         "{msg}"
     );
     // Infinity as well.
-    let mut c = cloth(
-        "shirt",
-        grid(
-            DVec3::new(0.0, 0.0, 0.01),
-            DVec3::X,
-            DVec3::Y,
-            [0.02, 0.02],
-            [3, 3],
-        ),
-        DVec3::ZERO,
-    );
+    let mut c = cloth("shirt", small_sheet(3), DVec3::ZERO);
     if let ObjectKind::Cloth { velocity, .. } = &mut c.kind {
         velocity[0].x = f64::INFINITY;
     }
@@ -1489,17 +1485,7 @@ fn non_finite_positions_are_refused_as_mesh_errors() {
     for (obj, vertex) in [(0usize, 1usize), (1, 5)] {
         let mut objects = vec![
             obstacle("floor", big_triangle()),
-            cloth(
-                "shirt",
-                grid(
-                    DVec3::new(0.0, 0.0, 0.01),
-                    DVec3::X,
-                    DVec3::Y,
-                    [0.02, 0.02],
-                    [3, 3],
-                ),
-                DVec3::ZERO,
-            ),
+            cloth("shirt", small_sheet(3), DVec3::ZERO),
         ];
         objects[obj].mesh.positions[vertex].z = if obj == 0 {
             f64::NAN
@@ -1524,13 +1510,7 @@ fn non_finite_positions_are_refused_as_mesh_errors() {
         }
     }
     // A non-finite rest shape.
-    let g = grid(
-        DVec3::new(0.0, 0.0, 0.01),
-        DVec3::X,
-        DVec3::Y,
-        [0.02, 0.02],
-        [3, 3],
-    );
+    let g = small_sheet(3);
     let mut rest = g.positions.clone();
     rest[2].x = f64::NAN;
     let c = ObjectSpec {
@@ -1553,13 +1533,7 @@ fn non_finite_positions_are_refused_as_mesh_errors() {
 
 #[test]
 fn non_finite_gravity_is_refused_or_stops_cleanly() {
-    let g = grid(
-        DVec3::new(0.0, 0.0, 0.01),
-        DVec3::X,
-        DVec3::Y,
-        [0.02, 0.02],
-        [3, 3],
-    );
+    let g = small_sheet(3);
     let s = spec(
         vec![cloth("shirt", g, DVec3::ZERO)],
         DVec3::new(0.0, 0.0, f64::NAN),
@@ -1584,13 +1558,7 @@ fn non_finite_gravity_is_refused_or_stops_cleanly() {
 
 #[test]
 fn pin_with_an_out_of_range_vertex_is_refused() {
-    let g = grid(
-        DVec3::new(0.0, 0.0, 0.01),
-        DVec3::X,
-        DVec3::Y,
-        [0.02, 0.02],
-        [3, 3],
-    );
+    let g = small_sheet(3);
     let mut s = spec(vec![cloth("shirt", g, DVec3::ZERO)], DVec3::ZERO, 10);
     s.pins.push(PinSpec {
         name: "clip".into(),
@@ -1645,13 +1613,7 @@ fn degenerate_cloth_triangle_is_refused() {
     // A valid mesh whose rest shape has a zero-area triangle: triangle 3 is
     // (2, 5, 4); the rest position of vertex 5 (which keeps mass from
     // triangle (4, 5, 8)) goes to the midpoint of edge (2, 4).
-    let g = grid(
-        DVec3::new(0.0, 0.0, 0.01),
-        DVec3::X,
-        DVec3::Y,
-        [0.02, 0.02],
-        [3, 3],
-    );
+    let g = small_sheet(3);
     assert_eq!(g.triangles[3], [2, 5, 4]);
     let mut rest = g.positions.clone();
     rest[5] = (rest[2] + rest[4]) * 0.5;
@@ -1701,13 +1663,7 @@ fn degenerate_cloth_triangle_is_refused() {
 #[test]
 fn poisson_ratio_of_one_half_or_more_is_refused() {
     for nu in [0.5, 0.7, f64::NAN] {
-        let g = grid(
-            DVec3::new(0.0, 0.0, 0.01),
-            DVec3::X,
-            DVec3::Y,
-            [0.02, 0.02],
-            [3, 3],
-        );
+        let g = small_sheet(3);
         let mut c = cloth("rubber", g, DVec3::ZERO);
         if let ObjectKind::Cloth { material, .. } = &mut c.kind {
             material.poisson_ratio = nu;
@@ -1809,13 +1765,7 @@ fn given_step_with_too_much_damping_names_the_cloth_and_the_values_that_pass() {
 /// below it build; above it the scene is refused with both numbers.
 #[test]
 fn contact_stiffness_above_the_layer_stability_bound_is_refused() {
-    let sheet = grid(
-        DVec3::new(0.0, 0.0, 0.01),
-        DVec3::X,
-        DVec3::Y,
-        [0.02, 0.02],
-        [5, 5],
-    );
+    let sheet = small_sheet(5);
     let mut s = spec(vec![cloth("sheet", sheet, DVec3::ZERO)], DVec3::ZERO, 10);
     let auto = World::build(&s).unwrap().schedule.k_1;
     s.contact.stiffness = Some(auto);
@@ -1841,13 +1791,7 @@ fn contact_stiffness_above_the_layer_stability_bound_is_refused() {
 /// that works — not silently capped.
 #[test]
 fn layer1_step_shift_beyond_the_tick_lattice_is_refused() {
-    let sheet = grid(
-        DVec3::new(0.0, 0.0, 0.01),
-        DVec3::X,
-        DVec3::Y,
-        [0.02, 0.02],
-        [5, 5],
-    );
+    let sheet = small_sheet(5);
     let mut s = spec(vec![cloth("sheet", sheet, DVec3::ZERO)], DVec3::ZERO, 10);
     s.contact.layer1_step_shift = 10;
     let w = World::build(&s).expect("shift 10 resolves 101 layers");
