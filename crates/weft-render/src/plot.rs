@@ -224,6 +224,12 @@ fn time_chart(stats: &[WindowStats], timing: &[WindowTiming]) -> Chart {
                 series("broad", 2, pick(&|t| t.stage_seconds.broad), Style::Line),
                 series("narrow", 3, pick(&|t| t.stage_seconds.narrow), Style::Line),
                 series("commit", 4, pick(&|t| t.stage_seconds.commit), Style::Line),
+                series(
+                    "predict",
+                    5,
+                    pick(&|t| t.stage_seconds.predict),
+                    Style::Line,
+                ),
             ],
         }],
     }

@@ -18,6 +18,11 @@ pub struct ContactConfig {
     pub layers_per_detection: u32,
     /// Calm windows before the innermost layer of a stencil is retired.
     pub retire_after_windows: u32,
+    /// Activate layers before a window for the stencils its extrapolated
+    /// motion brings into them (`engine/predict.rs`): fewer rollbacks, the
+    /// same trajectory (policy independence, `acm-spec.md` §4).
+    #[serde(default)]
+    pub predict: bool,
     /// Coulomb friction coefficient (0 = off).
     pub friction: f64,
     /// Rollbacks of one window before the run stops with a diagnostic.
@@ -33,6 +38,7 @@ impl Default for ContactConfig {
             layer1_step_shift: 0,
             layers_per_detection: 5,
             retire_after_windows: 3,
+            predict: false,
             friction: 0.0,
             max_rollbacks: 1000,
         }

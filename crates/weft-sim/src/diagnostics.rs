@@ -47,6 +47,17 @@ pub struct WindowStats {
     pub confirmed: u64,
     /// Layers retired at commit.
     pub retired_layers: u64,
+    /// Layers activated before the window by prediction
+    /// (`contact.predict`), and by the detections of its rollbacks.
+    #[serde(default)]
+    pub predicted_layers: u64,
+    #[serde(default)]
+    pub detected_layers: u64,
+    /// Of the predicted layers, those of stencils certified to stay outside
+    /// their first predicted layer over the committed pass (never reached;
+    /// a conservative count: an uncertain one counts as reached).
+    #[serde(default)]
+    pub predicted_unreached: u64,
     /// Trajectory breakpoints of the committed pass.
     pub breakpoints: u64,
     /// Smallest stencil distance seen at layer events and at the window end (m);
@@ -99,6 +110,10 @@ pub struct StageSeconds {
     pub internal: f64,
     /// Broad phase (DOPs, BVH, stencil filtering).
     pub broad: f64,
+    /// The layer prediction before the first pass (`contact.predict`):
+    /// accelerations, its own broad phase, sampled distances.
+    #[serde(default)]
+    pub predict: f64,
     /// Narrow phase (continuous proximity tests).
     pub narrow: f64,
     /// Commit: layer retirement and diagnostics.

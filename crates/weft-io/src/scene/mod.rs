@@ -168,6 +168,14 @@ pub fn parse_scene(text: &str, path: &Path, overrides: &[String]) -> Result<Scen
     if let Some(root) = table.as_table_mut() {
         root.remove("partitions");
     }
+    // Nor do the layer activation policies: which layers are active never
+    // changes the trajectory (policy independence, `acm-spec.md` §4), so a
+    // run resumes, and `weft bench` starts, under another policy.
+    if let Some(contact) = table.get_mut("contact").and_then(|t| t.as_table_mut()) {
+        for key in ["predict", "layers_per_detection", "retire_after_windows"] {
+            contact.remove(key);
+        }
+    }
     // `toml::Table` keeps keys sorted, so equal scenes print equal text.
     let canonical = toml::to_string(&table).unwrap_or_default();
     scene.fingerprint = format!("{:032x}", xxhash_rust::xxh3::xxh3_128(canonical.as_bytes()));
@@ -1446,6 +1454,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             layer1_step_shift: file.contact.layer1_step_shift,
             layers_per_detection: file.contact.layers_per_detection,
             retire_after_windows: file.contact.retire_after_windows,
+            predict: file.contact.predict,
             friction: file.contact.friction,
             max_rollbacks: file.contact.max_rollbacks,
         },

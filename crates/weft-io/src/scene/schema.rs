@@ -144,6 +144,9 @@ pub struct ContactSection {
     /// Calm windows before a layer is retired.
     #[serde(default = "default_retire")]
     pub retire_after_windows: u32,
+    /// Activate layers ahead of detection from the extrapolated motion.
+    #[serde(default = "default_predict")]
+    pub predict: bool,
     /// Rollback cap per window.
     #[serde(default = "default_max_rollbacks")]
     pub max_rollbacks: u32,
@@ -161,6 +164,9 @@ fn default_layers() -> u32 {
 fn default_retire() -> u32 {
     3
 }
+fn default_predict() -> bool {
+    false
+}
 fn default_max_rollbacks() -> u32 {
     1000
 }
@@ -175,6 +181,7 @@ impl Default for ContactSection {
             layers_per_detection: default_layers(),
             friction: 0.0,
             retire_after_windows: default_retire(),
+            predict: default_predict(),
             max_rollbacks: default_max_rollbacks(),
         }
     }

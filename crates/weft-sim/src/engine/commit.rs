@@ -4,13 +4,16 @@
 use weft_core::StencilKey;
 use weft_geom::ccd::{proximity, CcdStats};
 
+use super::predict::Predicted;
 use super::Engine;
 use crate::executor::{CommError, Executor};
 use crate::layers::LayerState;
 use crate::trace;
 
 impl<E: Executor> Engine<E> {
-    /// Retires calm innermost layers; returns how many were retired.
+    /// Retires calm innermost layers; returns how many were retired, and how
+    /// many of the `predicted` layers were never reached (their stencil
+    /// certified to stay outside its first predicted layer over the window).
     ///
     /// A stencil is calm in a window when it is certified to stay farther than
     /// `eta_depth` over the whole window, T1 included (by the narrow phase, or
@@ -18,7 +21,11 @@ impl<E: Executor> Engine<E> {
     /// `retire_after_windows` calm windows in a row its innermost layer is
     /// retired, then the next innermost as long as it is certified too — the
     /// active set stays a prefix `1..=depth` — and the counter restarts.
-    pub(super) fn commit(&mut self, candidates: &[StencilKey]) -> Result<u64, CommError> {
+    pub(super) fn commit(
+        &mut self,
+        candidates: &[StencilKey],
+        predicted: &Predicted,
+    ) -> Result<(u64, u64), CommError> {
         const TASK: usize = 64;
         let entries: Vec<(StencilKey, LayerState)> = (self.world.layers.stencils.iter())
             .map(|(k, s)| (*k, *s))
@@ -62,7 +69,7 @@ impl<E: Executor> Engine<E> {
         let decided = self.exec.map_on_ranks(runs.len(), &owner, &|t| {
             let _span = trace::span_with("commit task", "first", runs[t][0] as u64);
             let mut ccd = CcdStats::default();
-            let states: Vec<(LayerState, u64)> = runs[t]
+            let states: Vec<(LayerState, u64, u64)> = runs[t]
                 .iter()
                 .map(|&n| {
                     let (key, mut s) = entries[n];
@@ -71,13 +78,19 @@ impl<E: Executor> Engine<E> {
                         tr.as_ref()
                             .is_none_or(|tr| !proximity(key.kind, tr, eta, &mut ccd))
                     };
+                    // Predicted layers never reached: the stencil stayed
+                    // outside its first predicted layer (statistics only).
+                    let unreached = predicted.of(&key).map_or(0, |(before, added)| {
+                        let outside = certified_outside(w.schedule.eta(before + 1));
+                        u64::from(outside) * added as u64
+                    });
                     if !certified_outside(w.schedule.eta(s.depth)) {
                         s.calm_windows = 0;
-                        return (s, 0);
+                        return (s, 0, unreached);
                     }
                     s.calm_windows += 1;
                     if s.calm_windows < hysteresis {
-                        return (s, 0);
+                        return (s, 0, unreached);
                     }
                     s.calm_windows = 0;
                     s.depth -= 1;
@@ -86,15 +99,15 @@ impl<E: Executor> Engine<E> {
                         s.depth -= 1;
                         retired += 1;
                     }
-                    (s, retired)
+                    (s, retired, unreached)
                 })
                 .collect();
             (states, ccd)
         })?;
-        let mut retired = 0;
+        let (mut retired, mut unreached) = (0, 0);
         // (every entry is in exactly one run: each slot is overwritten)
-        let mut decided_states: Vec<(LayerState, u64)> =
-            entries.iter().map(|&(_, s)| (s, 0)).collect();
+        let mut decided_states: Vec<(LayerState, u64, u64)> =
+            entries.iter().map(|&(_, s)| (s, 0, 0)).collect();
         for ((states, ccd), run) in decided.into_iter().zip(&runs) {
             self.ccd.merge(&ccd);
             for (state, &n) in states.into_iter().zip(*run) {
@@ -102,14 +115,15 @@ impl<E: Executor> Engine<E> {
             }
         }
         let layers = &mut self.world.layers.stencils;
-        for ((key, _), (s, r)) in entries.iter().zip(decided_states) {
+        for ((key, _), (s, r, u)) in entries.iter().zip(decided_states) {
             retired += r;
+            unreached += u;
             if s.depth == 0 {
                 layers.remove(key);
             } else {
                 layers.insert(*key, s);
             }
         }
-        Ok(retired)
+        Ok((retired, unreached))
     }
 }

@@ -2,6 +2,7 @@
 //! time order, detect, and either commit or roll back with more layers.
 //!
 //! ```text
+//! predict: deepen the stencils the extrapolated motion brings into a layer
 //! snapshot (x, v, tau)                      -- not the active layers
 //! loop:
 //!     events in [T0, T1), batched per tick; record trajectory breakpoints
@@ -12,7 +13,8 @@
 //!           stencil (the layer set only grows within a window), run again
 //! ```
 //!
-//! Its stages, each in a module of its own: the events of a pass
+//! Its stages, each in a module of its own: the prediction of layers
+//! (`predict.rs`), the events of a pass
 //! (`events/`: internal ticks, contact islands and their penalty-layer
 //! batches, trajectories), the broad phase ([`crate::broad`]), the narrow
 //! phase (`narrow.rs`) and the commit (`commit.rs`: retiring layers).
@@ -25,6 +27,7 @@ use std::time::Instant;
 mod commit;
 mod events;
 mod narrow;
+mod predict;
 
 use glam::DVec3;
 use weft_core::{StencilKey, StencilKind};
@@ -43,6 +46,7 @@ use crate::trace;
 use crate::trajectory::Trajectories;
 use crate::world::World;
 use events::{PassCounts, Workspace};
+use predict::{Predicted, Predictor};
 
 /// The state restored on rollback.
 #[derive(Clone, Debug)]
@@ -75,6 +79,8 @@ pub struct Engine<E: Executor = Serial> {
     pub world: World,
     exec: E,
     traj: Trajectories,
+    /// The layer predictor's scratch (`predict.rs`).
+    predictor: Predictor,
     ws: Workspace,
     /// The broad phase's trees and scratch, reused across passes.
     broad: BroadPhase,
@@ -134,6 +140,7 @@ impl<E: Executor> Engine<E> {
             world,
             exec,
             traj,
+            predictor: Predictor::new(n, share.as_ref().map(|s| (s.owner.clone(), s.rank as u32))),
             totals: RunTotals::default(),
             ccd: CcdStats::default(),
             interrupt: None,
@@ -353,6 +360,14 @@ impl<E: Executor> Engine<E> {
         // The deepest layer a stencil may get (about 30 `pow` calls: once
         // per window, not per rollback).
         let resolved = self.world.schedule.resolved_depth();
+        let clock = Instant::now();
+        let predicted = if self.world.contact.predict {
+            self.predict_layers(resolved)?
+        } else {
+            Predicted::default()
+        };
+        stages.predict = clock.elapsed().as_secs_f64();
+        let mut detected_layers = 0u64;
         loop {
             let clock = Instant::now();
             let events_span = trace::span_with("events", "pass", rollbacks as u64);
@@ -420,8 +435,8 @@ impl<E: Executor> Engine<E> {
             if reported.is_empty() {
                 let clock = Instant::now();
                 let _commit_span = trace::span("commit");
-                let retired = match self.commit(&candidates) {
-                    Ok(retired) => retired,
+                let (retired, unreached) = match self.commit(&candidates, &predicted) {
+                    Ok(done) => done,
                     Err(e) => {
                         snap.restore(&mut self.world);
                         return Err(e.into());
@@ -439,6 +454,9 @@ impl<E: Executor> Engine<E> {
                 );
                 stages.commit += clock.elapsed().as_secs_f64();
                 stats.stage_seconds = stages;
+                stats.predicted_layers = predicted.layers;
+                stats.predicted_unreached = unreached;
+                stats.detected_layers = detected_layers;
                 self.world.window_index += 1;
                 self.totals.windows += 1;
                 self.totals.rollbacks += rollbacks as u64;
@@ -466,7 +484,9 @@ impl<E: Executor> Engine<E> {
                         resolved,
                     });
                 }
-                self.world.layers.deepen(*key, extra.min(resolved - depth));
+                let added = extra.min(resolved - depth);
+                self.world.layers.deepen(*key, added);
+                detected_layers += added as u64;
             }
             rollbacks += 1;
             let so_far = self.totals.rollbacks + rollbacks as u64;
@@ -553,6 +573,9 @@ impl<E: Executor> Engine<E> {
             candidates,
             confirmed,
             retired_layers: retired,
+            predicted_layers: 0,
+            detected_layers: 0,
+            predicted_unreached: 0,
             breakpoints: self.traj.breakpoints() as u64,
             min_separation: min_sep.is_finite().then_some(min_sep),
             kinetic_energy: e.0,

@@ -106,6 +106,11 @@ struct Sample {
     islands: u64,
     largest_island_layer_events: u64,
     rollbacks: u64,
+    /// Layers activated by prediction and by detection, and the predicted
+    /// ones never reached, summed over windows.
+    predicted_layers: u64,
+    detected_layers: u64,
+    predicted_unreached: u64,
     /// Narrow-phase queries over all passes (rolled-back ones included).
     narrow_queries: u64,
     active_stencils: u64,
@@ -127,6 +132,9 @@ struct RankSample {
     broad: f64,
     narrow: f64,
     commit: f64,
+    /// The layer prediction (before each window's first pass).
+    #[serde(default)]
+    predict: f64,
     /// The internal-force part of `events`.
     internal: f64,
     messages: u64,
@@ -157,9 +165,11 @@ pub struct StageTimes {
     pub broad: f64,
     pub narrow: f64,
     pub commit: f64,
+    /// The layer prediction before each window's first pass.
+    pub predict: f64,
     /// The internal-force part of `events`.
     pub internal: f64,
-    /// Wall time outside the four stages (snapshots, restores, statistics).
+    /// Wall time outside the five stages (snapshots, restores, statistics).
     pub other: f64,
 }
 
@@ -219,6 +229,11 @@ pub struct BenchReport {
     pub repeats: usize,
     /// Per window of the benchmark (the same in every run).
     pub rollbacks_per_window: f64,
+    /// Layers activated per window by prediction (`contact.predict`) and by
+    /// detection (rollbacks), and the predicted ones never reached.
+    pub predicted_layers_per_window: f64,
+    pub detected_layers_per_window: f64,
+    pub predicted_unreached_per_window: f64,
     pub narrow_queries_per_window: f64,
     pub internal_evaluations_per_window: f64,
     pub layer_events_per_window: f64,
@@ -373,6 +388,9 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         windows: a.windows,
         repeats: a.repeats,
         rollbacks_per_window: 0.0,
+        predicted_layers_per_window: 0.0,
+        detected_layers_per_window: 0.0,
+        predicted_unreached_per_window: 0.0,
         narrow_queries_per_window: 0.0,
         internal_evaluations_per_window: 0.0,
         layer_events_per_window: 0.0,
@@ -678,6 +696,10 @@ fn measure<E: Executor>(
         s.own.broad += w.stage_seconds.broad;
         s.own.narrow += w.stage_seconds.narrow;
         s.own.commit += w.stage_seconds.commit;
+        s.own.predict += w.stage_seconds.predict;
+        s.predicted_layers += w.predicted_layers;
+        s.detected_layers += w.detected_layers;
+        s.predicted_unreached += w.predicted_unreached;
         s.own.internal += w.stage_seconds.internal;
         // Every pass runs the window's internal ticks (a pass cut short by a
         // blow-up, which is rolled back, would count a little high).
@@ -727,6 +749,9 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
     let first = &all[0].1[0];
     let windows = r.windows as f64;
     r.rollbacks_per_window = first.rollbacks as f64 / windows;
+    r.predicted_layers_per_window = first.predicted_layers as f64 / windows;
+    r.detected_layers_per_window = first.detected_layers as f64 / windows;
+    r.predicted_unreached_per_window = first.predicted_unreached as f64 / windows;
     r.narrow_queries_per_window = first.narrow_queries as f64 / windows;
     r.internal_evaluations_per_window = first.internal_evaluations as f64 / windows;
     r.layer_events_per_window = first.layer_events as f64 / windows;
@@ -765,8 +790,11 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
             broad: of_rank(of, &|x| x.broad),
             narrow: of_rank(of, &|x| x.narrow),
             commit: of_rank(of, &|x| x.commit),
+            predict: of_rank(of, &|x| x.predict),
             internal: of_rank(of, &|x| x.internal),
-            other: of_rank(of, &|x| x.wall - x.events - x.broad - x.narrow - x.commit),
+            other: of_rank(of, &|x| {
+                x.wall - x.events - x.broad - x.narrow - x.commit - x.predict
+            }),
         };
         let evals = first.internal_evaluations as f64;
         let per_rank = (0..ranks)
@@ -876,6 +904,14 @@ fn table(r: &BenchReport) -> String {
     );
     let _ = writeln!(
         s,
+        "layers      per window {:.0} activated by prediction ({:.0} never reached), {:.0} by \
+         detection",
+        r.predicted_layers_per_window,
+        r.predicted_unreached_per_window,
+        r.detected_layers_per_window
+    );
+    let _ = writeln!(
+        s,
         "islands     {:.1} contact islands per window; the largest holds {} of the layer events; \
          at the end, islands of 1, 2-3, 4-7, ... stencils: {:?} (largest {})",
         r.islands_per_window,
@@ -911,7 +947,7 @@ fn table(r: &BenchReport) -> String {
     let _ = writeln!(s);
     let _ = writeln!(
         s,
-        "{:>5} {:>7} {:>10} {:>8} {:>9} {:>8} {:>8} {:>8} {:>8} {:>12} {:>15} {:>12} {:>8} {:>10}",
+        "{:>5} {:>7} {:>10} {:>8} {:>9} {:>8} {:>8} {:>8} {:>8} {:>8} {:>12} {:>15} {:>12} {:>8} {:>10}",
         "ranks",
         "threads",
         "ms/window",
@@ -920,6 +956,7 @@ fn table(r: &BenchReport) -> String {
         "broad",
         "narrow",
         "commit",
+        "predict",
         "other",
         "evals/core·s",
         "internal/core·s",
@@ -931,7 +968,7 @@ fn table(r: &BenchReport) -> String {
         let st = &t.stage_seconds_per_window;
         let _ = writeln!(
             s,
-            "{:>5} {:>7} {:>10} {:>8} {:>9} {:>8} {:>8} {:>8} {:>8} {:>12.4e} {:>15.4e} {:>12.4e} {:>8} {:>10}",
+            "{:>5} {:>7} {:>10} {:>8} {:>9} {:>8} {:>8} {:>8} {:>8} {:>8} {:>12.4e} {:>15.4e} {:>12.4e} {:>8} {:>10}",
             t.ranks,
             t.threads,
             ms(t.wall_seconds_per_window),
@@ -940,6 +977,7 @@ fn table(r: &BenchReport) -> String {
             ms(st.broad),
             ms(st.narrow),
             ms(st.commit),
+            ms(st.predict),
             ms(st.other),
             t.internal_evaluations_per_core_second,
             t.internal_stage_evaluations_per_core_second,
@@ -964,7 +1002,7 @@ fn table(r: &BenchReport) -> String {
             let st = &k.stage_seconds_per_window;
             let _ = writeln!(
                 s,
-                "  rank {:>3}: events {} internal {} broad {} narrow {} commit {} other {} ms; \
+                "  rank {:>3}: events {} internal {} broad {} narrow {} commit {} predict {} other {} ms; \
                  {:.0} messages, {:.3} MB sent, {:.0} collectives and {:.0} exchanges per \
                  window ({:.2} per internal tick)",
                 k.rank,
@@ -973,6 +1011,7 @@ fn table(r: &BenchReport) -> String {
                 ms(st.broad),
                 ms(st.narrow),
                 ms(st.commit),
+                ms(st.predict),
                 ms(st.other),
                 k.messages_per_window,
                 k.bytes_per_window / 1e6,

@@ -113,6 +113,14 @@ impl Workspace {
     }
 }
 
+impl Workspace {
+    /// The internal forces' slot bounds and output slots, as scratch
+    /// between passes (the predictor's accelerations).
+    pub(super) fn internal_scratch(&mut self) -> (&[usize], &mut [DVec3]) {
+        (&self.bounds, &mut self.out)
+    }
+}
+
 /// How many ticks of a clock of period `p` fall in `[t0, t1)` (clocks tick
 /// at `n p`, `n ≥ 1`).
 fn ticks_in(t0: Tick, t1: Tick, p: Tick) -> u64 {

@@ -1,0 +1,242 @@
+//! Predictive activation: layers given before a window runs, to the
+//! stencils its motion is about to bring into them, so that the detection
+//! does not have to ask for them with a rollback.
+//!
+//! Why it is free to guess: a layer kicks only inside its `eta_l`, and a
+//! zero kick leaves no trace, so an active layer that is never reached
+//! changes nothing. A committed window keeps every stencil outside its first
+//! inactive layer, so its trajectory is that of "every layer always active",
+//! whichever layers were active (policy independence, `acm-spec.md` §4; held
+//! by `weft-par/tests/policy.rs`). A wrong guess costs a layer that sleeps
+//! until it retires (not nothing: every internal tick wakes every active
+//! stencil); a missed one costs what it costs without prediction, a
+//! rollback. Off by default (`contact.predict`): `docs/performance.md`,
+//! "Fewer passes", has where it pays and where it does not.
+//!
+//! **Inactive stencils** (new contacts). From the state at the window start,
+//!
+//! ```text
+//! x_i(t) = x_i + v_i t + clamp(a_i t²/2, eta_1)   a_i = (f_internal,i + m_i g) / m_i
+//! x_i(t) = P_i(T0 + t)                             a scripted vertex: its script
+//! ```
+//!
+//! sampled every half window up to [`HORIZON_HALF_WINDOWS`] half windows
+//! (`a_i = 0` for a vertex of a stencil inside `eta_1` now: contact forces,
+//! left out here, hold it). The broad phase over the sampled polylines finds
+//! the stencils that may come near; one whose distance at a sample is inside
+//! `eta_1` gets layers as a detection would give them
+//! (`layers_per_detection`). The acceleration's displacement is clamped to
+//! `eta_1`: a larger one comes from stiff elastic modes that oscillate many
+//! times within a window instead of carrying the vertex along (unclamped,
+//! `crumple`'s wavy start predicted 7,125 contacts at window 0; none was
+//! real).
+//!
+//! **Active stencils** (deeper layers). Their layers push back, so the
+//! extrapolated motion is no guide (it deepened `crumple`'s stencils by
+//! 5 layers a window, to depth 60); they get more layers when their closing
+//! kinetic energy exceeds what their active layers store on the way to the
+//! next one ([`closes_through_barrier`]).
+//!
+//! Predicted layers retire like any other, after `retire_after_windows` calm
+//! windows. Measured on the 10k twister from its checkpoint: every stencil a
+//! rollback reported was a new contact of sleeve and rod, just outside
+//! `eta_1` and closing faster than its start velocity says: the cloth
+//! accelerates onto the turning rod. Velocity alone foresaw the rollbacks of
+//! no window; with the acceleration and the rod's script over one and a half
+//! windows, 5 of 6 windows ran without one. Dropping a predicted layer at
+//! once when it was not reached (instead of letting it retire) brought a
+//! rollback back into every window: the stencils that hover near the rod
+//! need the memory the retirement hysteresis gives.
+
+use glam::DVec3;
+use weft_core::StencilKey;
+use weft_geom::distance::stencil_closest;
+
+use super::Engine;
+use crate::executor::{CommError, Executor};
+use crate::trace;
+use crate::trajectory::Trajectories;
+
+/// How far ahead the motion is sampled, in half windows.
+const HORIZON_HALF_WINDOWS: u64 = 3;
+
+/// The predictor's memory, reused across windows.
+#[derive(Debug)]
+pub(super) struct Predictor {
+    /// The sampled predicted motions the broad phase reads.
+    traj: Trajectories,
+    /// Per vertex: its predicted acceleration.
+    acc: Vec<DVec3>,
+}
+
+impl Predictor {
+    /// For `n` vertices; over ranks each vertex's samples are kept by the
+    /// rank `holder` gives it, as for the window's trajectories.
+    pub fn new(n: usize, holder: Option<(Vec<u32>, u32)>) -> Self {
+        let mut traj = Trajectories::new(n, usize::MAX);
+        if let Some((holder, me)) = holder {
+            traj.hold_only(holder, me);
+        }
+        Self {
+            traj,
+            acc: Vec::new(),
+        }
+    }
+}
+
+/// `a`, shortened to at most `max` long.
+fn clamp_length(a: DVec3, max: f64) -> DVec3 {
+    let len = a.length();
+    if len > max {
+        a * (max / len)
+    } else {
+        a
+    }
+}
+
+/// Whether an active stencil (depth ≥ 1) may reach its first inactive
+/// layer: its closing kinetic energy exceeds the energy its active layers
+/// store between its distance now and `eta_next`. The extrapolated motion
+/// is no guide here, since the active layers push back; measured on
+/// `crumple`, extrapolating through them deepened stencils without end.
+///
+/// Along the normal, with `d' = Σ_j c_j n·v_j` and the effective mass
+/// `m = 1 / Σ_j c_j² w_j` (dynamic vertices only):
+///
+/// ```text
+/// m min(0, d')² / 2  >  Σ_l≤depth V_l(eta_next) - V_l(d)
+/// ```
+fn closes_through_barrier(
+    w: &crate::world::World,
+    key: &StencilKey,
+    depth: u32,
+    eta_next: f64,
+) -> bool {
+    let x = key.v.map(|i| w.x[i as usize]);
+    let c = stencil_closest(key.kind, &x);
+    if !(c.d > eta_next) {
+        return true;
+    }
+    let (mut rate, mut m_inv) = (0.0, 0.0);
+    for j in 0..4 {
+        let i = key.v[j] as usize;
+        rate += c.coeff[j] * c.n.dot(w.v[i]);
+        m_inv += c.coeff[j] * c.coeff[j] * w.inv_mass[i];
+    }
+    if !(m_inv > 0.0) {
+        return false;
+    }
+    let closing = 0.5 * rate.min(0.0) * rate.min(0.0) / m_inv;
+    let barrier =
+        w.schedule.energy_through(depth, eta_next) - w.schedule.energy_through(depth, c.d);
+    closing > barrier
+}
+
+/// The stencils the predictor deepened before a window, in key order: each
+/// with its depth before and the layers it got; and the layers in all.
+#[derive(Clone, Debug, Default)]
+pub(super) struct Predicted {
+    pub stencils: Vec<(StencilKey, u32, u32)>,
+    pub layers: u64,
+}
+
+impl Predicted {
+    /// `key`'s depth before the prediction and the layers the prediction
+    /// gave it, if it was predicted.
+    pub fn of(&self, key: &StencilKey) -> Option<(u32, u32)> {
+        let n = self.stencils.binary_search_by(|(k, ..)| k.cmp(key)).ok()?;
+        let (_, before, added) = self.stencils[n];
+        Some((before, added))
+    }
+}
+
+impl<E: Executor> Engine<E> {
+    /// Activates the predicted layers at the window start (every vertex is
+    /// synchronized at `world.tick`). The same on every rank: the broad
+    /// phase gives every rank every candidate, and the decisions read only
+    /// positions, velocities, scripts, internal forces and the layer set,
+    /// which every rank has in full.
+    pub(super) fn predict_layers(&mut self, resolved: u32) -> Result<Predicted, CommError> {
+        let _span = trace::span("predict");
+        let w = &self.world;
+        // Accelerations from the internal forces and gravity (no contact:
+        // the penalty forces only ever push apart).
+        let (bounds, out) = self.ws.internal_scratch();
+        w.internal
+            .evaluate(&self.exec, bounds, &w.x, &w.v, out, None);
+        let acc = &mut self.predictor.acc;
+        acc.resize(w.x.len(), DVec3::ZERO);
+        for (i, a) in acc.iter_mut().enumerate() {
+            *a = if w.inv_mass[i] > 0.0 {
+                (w.internal.fold(i, out) - w.gravity * w.mass[i]) * -w.inv_mass[i]
+            } else {
+                DVec3::ZERO
+            };
+        }
+        // A vertex of a stencil inside its layers now is held by contact
+        // forces this leaves out (a cloth resting on a sphere would be
+        // predicted to fall into it): it moves on with its velocity only.
+        for key in w.layers.stencils.keys() {
+            let x = key.v.map(|i| w.x[i as usize]);
+            if stencil_closest(key.kind, &x).d < w.schedule.eta_1 {
+                for &i in &key.v {
+                    acc[i as usize] = DVec3::ZERO;
+                }
+            }
+        }
+        let acc: &[DVec3] = acc;
+        let half = w.lattice.window() / 2;
+        let now = w.time();
+        let reach = w.schedule.eta_1;
+        // Where vertex `i` is predicted `k` half windows ahead.
+        let ahead = |i: usize, k: u64| -> DVec3 {
+            let t = w.lattice.seconds(half * k);
+            match w.script_of[i] {
+                Some((s, j)) => w.scripts[s as usize].position(j as usize, now + t),
+                None => w.x[i] + w.v[i] * t + clamp_length(acc[i] * (0.5 * t * t), reach),
+            }
+        };
+        let traj = &mut self.predictor.traj;
+        traj.begin(w.tick, &w.x);
+        for i in 0..w.x.len() {
+            for k in 1..=HORIZON_HALF_WINDOWS {
+                traj.record(i, w.tick + half * k, ahead(i, k))
+                    .expect("the predicted motions have no budget");
+            }
+        }
+        let keys = self.broad.candidates_on(
+            &self.exec,
+            &w.triangles,
+            &w.inv_mass,
+            &self.predictor.traj,
+            0.5 * w.schedule.eta_1,
+        )?;
+        let deeper: Vec<bool> = self.exec.map(keys.len(), &|n| {
+            let key = &keys[n];
+            let depth = w.layers.depth(key);
+            let eta_next = w.schedule.eta(depth + 1);
+            if depth >= resolved {
+                return false;
+            }
+            if depth > 0 {
+                return closes_through_barrier(w, key, depth, eta_next);
+            }
+            (1..=HORIZON_HALF_WINDOWS).any(|k| {
+                let x = key.v.map(|i| ahead(i as usize, k));
+                stencil_closest(key.kind, &x).d < eta_next
+            })
+        });
+        let extra = w.contact.layers_per_detection;
+        let mut predicted = Predicted::default();
+        for (key, deeper) in keys.iter().zip(deeper) {
+            if deeper {
+                let before = self.world.layers.depth(key);
+                let added = extra.min(resolved - before);
+                self.world.layers.deepen(*key, added);
+                predicted.stencils.push((*key, before, added));
+                predicted.layers += added as u64;
+            }
+        }
+        Ok(predicted)
+    }
+}
