@@ -93,8 +93,9 @@ pub struct RunArgs {
     /// Output folder (created if missing).
     #[arg(long, required_unless_present = "resume", conflicts_with = "resume")]
     pub out: Option<PathBuf>,
-    /// Continue the run in DIR from its last checkpoint (only time.end may be
-    /// changed with --set).
+    /// Continue the run in DIR from its last checkpoint (only time.end and the
+    /// layer policies contact.predict, .layers_per_detection and
+    /// .retire_after_windows may be changed with --set).
     #[arg(long, value_name = "DIR", conflicts_with = "scene")]
     pub resume: Option<PathBuf>,
     /// Override a scene value: `--set key.path=value` (repeatable).
@@ -790,8 +791,9 @@ fn read_resumable(out: &Path, hash: &str) -> anyhow::Result<Checkpoint> {
     if ck.scene_hash != hash {
         bail!(
             "{}: the checkpoint was made from a different scene (scene hash {} there, {} now); \
-             the scene file, a mesh it reads or an override changed — only time.end may \
-             change on resume",
+             the scene file, a mesh it reads or an override changed — only time.end and the \
+             layer policies (contact.predict, .layers_per_detection, .retire_after_windows) \
+             may change on resume",
             path.display(),
             ck.scene_hash,
             hash

@@ -111,9 +111,7 @@ impl Workspace {
             ..Default::default()
         }
     }
-}
 
-impl Workspace {
     /// The internal forces' slot bounds and output slots, as scratch
     /// between passes (the predictor's accelerations).
     pub(super) fn internal_scratch(&mut self) -> (&[usize], &mut [DVec3]) {
