@@ -261,4 +261,38 @@ fn bench_over_ranks_reports_traffic_and_narrow_imbalance() {
         let x = positive(three, key);
         assert!((1.0..=3.0 + 1e-9).contains(&x), "{key} = {x}");
     }
+    // Counted scaling: each rank's work CPU, its stages within it, the sum
+    // and the largest; one process is its own reference.
+    assert_eq!(one["redundancy"], 1.0);
+    assert_eq!(one["speedup_bound"], 1.0);
+    let mut sum = 0.0;
+    let mut largest = 0.0f64;
+    for r in ranks {
+        let total = positive(r, "cpu_total_seconds_per_window");
+        let cpu = &r["cpu_seconds_per_window"];
+        let stages: f64 = ["events", "broad", "narrow", "commit"]
+            .iter()
+            .map(|k| positive(cpu, k))
+            .sum();
+        assert!(
+            stages <= total * 1.05 + 1e-3,
+            "stages {stages} > total {total}"
+        );
+        let wall = r["stage_seconds_per_window"]["events"].as_f64().unwrap();
+        assert!(cpu["events"].as_f64().unwrap() <= wall * 1.05 + 1e-3);
+        assert!(r["cpu_polling_seconds_per_window"].as_f64().unwrap() >= 0.0);
+        positive(r, "peak_rss_bytes");
+        sum += total;
+        largest = largest.max(total);
+    }
+    let counted = positive(three, "cpu_sum_seconds_per_window");
+    assert!((counted - sum).abs() <= 1e-9 * sum, "{counted} vs {sum}");
+    assert_eq!(three["critical_path_seconds_per_window"], largest);
+    // Three ranks repeat some work (redundancy > 0.5 at least) and none can
+    // beat three times one process.
+    let redundancy = positive(three, "redundancy");
+    let bound = positive(three, "speedup_bound");
+    assert!(redundancy > 0.5 && bound < 3.5, "{redundancy} {bound}");
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("critical path"), "{out}");
 }

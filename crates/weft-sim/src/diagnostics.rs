@@ -118,4 +118,18 @@ pub struct StageSeconds {
     pub narrow: f64,
     /// Commit: layer retirement and diagnostics.
     pub commit: f64,
+    /// The same stages' CPU seconds on this rank, polling for peers left
+    /// out (`crate::cpu`; `internal` is not split out).
+    #[serde(default)]
+    pub cpu: StageCpu,
+}
+
+/// CPU seconds per stage of one rank (see [`StageSeconds::cpu`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StageCpu {
+    pub events: f64,
+    pub broad: f64,
+    pub narrow: f64,
+    pub commit: f64,
+    pub predict: f64,
 }

@@ -30,6 +30,10 @@ pub struct Traffic {
     pub bytes: u64,
     pub collectives: u64,
     pub exchanges: u64,
+    /// CPU nanoseconds spent polling for peers' messages (a rank waiting,
+    /// not working): left out of the counted CPU ([`Executor::work_cpu_seconds`]).
+    #[serde(default)]
+    pub wait_cpu_ns: u64,
 }
 
 /// Ranks lost contact (a peer failed or is gone): the run cannot go on.
@@ -76,6 +80,19 @@ pub trait Executor: Sync {
         let owner: Vec<u32> = (0..self.ranks() as u32).collect();
         let said = self.map_on_ranks(owner.len(), &owner, &|_| yes)?;
         Ok(said.into_iter().any(|y| y))
+    }
+
+    /// CPU seconds this rank has used: the process's (every thread of it),
+    /// unless the rank is a thread among others in one process
+    /// ([`crate::cpu`]).
+    fn cpu_seconds(&self) -> f64 {
+        crate::cpu::process_seconds()
+    }
+
+    /// [`Executor::cpu_seconds`] less the CPU spent polling for peers: the
+    /// rank's work.
+    fn work_cpu_seconds(&self) -> f64 {
+        self.cpu_seconds() - self.traffic().wait_cpu_ns as f64 * 1e-9
     }
 
     /// What this rank sent to other ranks so far (nothing on one memory).

@@ -29,6 +29,7 @@ pub mod balance;
 pub mod broad;
 pub mod clock;
 pub mod config;
+pub mod cpu;
 pub mod diagnostics;
 pub mod dormancy;
 pub mod engine;

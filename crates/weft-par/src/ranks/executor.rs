@@ -117,6 +117,10 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         self.transport.traffic()
     }
 
+    fn cpu_seconds(&self) -> f64 {
+        self.transport.cpu_seconds()
+    }
+
     fn map_on_ranks<R: Message>(
         &self,
         n: usize,

@@ -119,21 +119,24 @@ impl MpiTransport {
     /// this does not give up: a peer that never joins the collective hangs
     /// it (the launcher ends the run when a rank's process dies, and a rank
     /// that fails calls [`MpiTransport::abort`]).
+    /// The polling is counted as waiting, not work (`Traffic::wait_cpu_ns`).
     fn complete<'a, D: ?Sized, S: Scope<'a>>(&self, mut request: Request<'a, D, S>) -> Status {
-        let mut backoff = Backoff::default();
-        loop {
-            let tested = {
-                let _call = self.mpi_call();
-                request.test()
-            };
-            match tested {
-                Ok(status) => return status,
-                Err(unfinished) => {
-                    request = unfinished;
-                    backoff.snooze();
+        self.sent.waiting(|| {
+            let mut backoff = Backoff::default();
+            loop {
+                let tested = {
+                    let _call = self.mpi_call();
+                    request.test()
+                };
+                match tested {
+                    Ok(status) => return status,
+                    Err(unfinished) => {
+                        request = unfinished;
+                        backoff.snooze();
+                    }
                 }
             }
-        }
+        })
     }
 
     fn failure(&self, what: String) -> RankFailure {

@@ -43,6 +43,7 @@ pub struct TrafficCounter {
     bytes: AtomicU64,
     collectives: AtomicU64,
     exchanges: AtomicU64,
+    wait_cpu_ns: AtomicU64,
 }
 
 impl TrafficCounter {
@@ -62,6 +63,16 @@ impl TrafficCounter {
         self.exchanges.fetch_add(1, Ordering::Relaxed);
     }
 
+    /// Runs `wait` (a rank waiting for its peers) and counts the CPU time
+    /// the calling thread spent in it as polling, not work.
+    pub fn waiting<R>(&self, wait: impl FnOnce() -> R) -> R {
+        let start = weft_sim::cpu::thread_seconds();
+        let r = wait();
+        let ns = ((weft_sim::cpu::thread_seconds() - start) * 1e9).max(0.0);
+        self.wait_cpu_ns.fetch_add(ns as u64, Ordering::Relaxed);
+        r
+    }
+
     /// What was counted so far.
     pub fn total(&self) -> Traffic {
         Traffic {
@@ -69,6 +80,7 @@ impl TrafficCounter {
             bytes: self.bytes.load(Ordering::Relaxed),
             collectives: self.collectives.load(Ordering::Relaxed),
             exchanges: self.exchanges.load(Ordering::Relaxed),
+            wait_cpu_ns: self.wait_cpu_ns.load(Ordering::Relaxed),
         }
     }
 }
@@ -103,6 +115,12 @@ pub trait Transport: Send + Sync {
 
     /// Messages and bytes this rank sent so far.
     fn traffic(&self) -> Traffic;
+
+    /// CPU seconds this rank has used ([`weft_sim::Executor::cpu_seconds`]):
+    /// its process's, where it is a process of its own.
+    fn cpu_seconds(&self) -> f64 {
+        weft_sim::cpu::process_seconds()
+    }
 }
 
 /// A borrowed transport: lets a caller keep its transport (to abort, or to
@@ -131,6 +149,10 @@ impl<T: Transport + ?Sized> Transport for &T {
 
     fn traffic(&self) -> Traffic {
         (**self).traffic()
+    }
+
+    fn cpu_seconds(&self) -> f64 {
+        (**self).cpu_seconds()
     }
 }
 
@@ -215,7 +237,7 @@ impl ChannelTransport {
     fn receive(&self, j: usize) -> Result<Vec<u8>, RankFailure> {
         let from = self.end(&self.from, j)?;
         let inbox = from.lock().map_err(|_| self.gone(j))?;
-        inbox.recv().map_err(|_| self.gone(j))
+        self.sent.waiting(|| inbox.recv()).map_err(|_| self.gone(j))
     }
 }
 
@@ -279,6 +301,12 @@ impl Transport for ChannelTransport {
 
     fn traffic(&self) -> Traffic {
         self.sent.total()
+    }
+
+    /// A rank that is a thread of the process: its own thread's CPU (its
+    /// work with one thread per rank).
+    fn cpu_seconds(&self) -> f64 {
+        weft_sim::cpu::thread_seconds()
     }
 }
 

@@ -64,6 +64,36 @@ impl Snapshot {
     }
 }
 
+/// A stage's wall clock and its rank's work CPU clock
+/// ([`Executor::work_cpu_seconds`]: polling for peers left out).
+struct StageClock {
+    wall: Instant,
+    cpu: f64,
+}
+
+impl StageClock {
+    fn start<E: Executor>(exec: &E) -> Self {
+        Self {
+            wall: Instant::now(),
+            cpu: exec.work_cpu_seconds(),
+        }
+    }
+
+    /// Wall and work-CPU seconds since the start.
+    fn stop<E: Executor>(&self, exec: &E) -> (f64, f64) {
+        (
+            self.wall.elapsed().as_secs_f64(),
+            exec.work_cpu_seconds() - self.cpu,
+        )
+    }
+
+    fn add_to<E: Executor>(&self, exec: &E, wall: &mut f64, cpu: &mut f64) {
+        let (w, c) = self.stop(exec);
+        *wall += w;
+        *cpu += c;
+    }
+}
+
 /// Totals over a run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RunTotals {
@@ -360,16 +390,16 @@ impl<E: Executor> Engine<E> {
         // The deepest layer a stencil may get (about 30 `pow` calls: once
         // per window, not per rollback).
         let resolved = self.world.schedule.resolved_depth();
-        let clock = Instant::now();
+        let clock = StageClock::start(&self.exec);
         let predicted = if self.world.contact.predict {
             self.predict_layers(resolved)?
         } else {
             Predicted::default()
         };
-        stages.predict = clock.elapsed().as_secs_f64();
+        (stages.predict, stages.cpu.predict) = clock.stop(&self.exec);
         let mut detected_layers = 0u64;
         loop {
-            let clock = Instant::now();
+            let clock = StageClock::start(&self.exec);
             let events_span = trace::span_with("events", "pass", rollbacks as u64);
             let mut counts = match self.run_events(t0, t1) {
                 Ok(c) => c,
@@ -379,13 +409,13 @@ impl<E: Executor> Engine<E> {
                 }
             };
             drop(events_span);
-            stages.events += clock.elapsed().as_secs_f64();
+            clock.add_to(&self.exec, &mut stages.events, &mut stages.cpu.events);
             stages.internal += counts.internal_seconds;
             if let Some(e) = counts.interrupted.take() {
                 snap.restore(&mut self.world);
                 return Err(e);
             }
-            let clock = Instant::now();
+            let clock = StageClock::start(&self.exec);
             let broad_span = trace::span("broad");
             let candidates = {
                 let w = &self.world;
@@ -398,8 +428,8 @@ impl<E: Executor> Engine<E> {
                 )
             };
             drop(broad_span);
-            stages.broad += clock.elapsed().as_secs_f64();
-            let clock = Instant::now();
+            clock.add_to(&self.exec, &mut stages.broad, &mut stages.cpu.broad);
+            let clock = StageClock::start(&self.exec);
             let count = candidates.as_ref().map_or(0, |c| c.len() as u64);
             let narrow_span = trace::span_with("narrow", "candidates", count);
             let found = candidates.and_then(|c| Ok((self.narrow_phase(&c)?, c)));
@@ -411,7 +441,7 @@ impl<E: Executor> Engine<E> {
                 }
             };
             drop(narrow_span);
-            stages.narrow += clock.elapsed().as_secs_f64();
+            clock.add_to(&self.exec, &mut stages.narrow, &mut stages.cpu.narrow);
             // A pass that blew up is a detection too: the stencils near the
             // vertex that went non-finite (typically pushed through too few
             // layers) get more layers, like the reported ones, bounded by
@@ -433,7 +463,7 @@ impl<E: Executor> Engine<E> {
                 blown_up += 1;
             }
             if reported.is_empty() {
-                let clock = Instant::now();
+                let clock = StageClock::start(&self.exec);
                 let _commit_span = trace::span("commit");
                 let (retired, unreached) = match self.commit(&candidates, &predicted) {
                     Ok(done) => done,
@@ -452,7 +482,7 @@ impl<E: Executor> Engine<E> {
                     &candidates,
                     started,
                 );
-                stages.commit += clock.elapsed().as_secs_f64();
+                clock.add_to(&self.exec, &mut stages.commit, &mut stages.cpu.commit);
                 stats.stage_seconds = stages;
                 stats.predicted_layers = predicted.layers;
                 stats.predicted_unreached = unreached;

@@ -30,6 +30,7 @@ use serde::Serialize;
 use weft_io::checkpoint::read_checkpoint;
 use weft_io::scene::load_scene;
 use weft_par::Threads;
+use weft_sim::diagnostics::StageCpu;
 use weft_sim::{Engine, EngineState, Executor, NarrowLoad, Serial, World};
 
 use super::run::{execute, scene_hash, signals::StopRequest, RunJob, CHECKPOINT_FILE};
@@ -137,6 +138,13 @@ struct RankSample {
     predict: f64,
     /// The internal-force part of `events`.
     internal: f64,
+    /// CPU seconds of this rank's work per stage, and over the whole run
+    /// (`weft_sim::cpu`; polling for peers left out), and the polling.
+    cpu: StageCpu,
+    cpu_total: f64,
+    cpu_polling: f64,
+    /// This rank's process's peak resident memory (VmHWM), bytes.
+    peak_rss: Option<u64>,
     messages: u64,
     bytes: u64,
     /// Collectives and point-to-point exchanges this rank took part in.
@@ -149,6 +157,14 @@ struct RankSample {
 pub struct RankFigures {
     pub rank: usize,
     pub stage_seconds_per_window: StageTimes,
+    /// CPU seconds of the rank's work per window, per stage and in all
+    /// (polling for peers left out), and the polling left out.
+    pub cpu_seconds_per_window: StageCpu,
+    pub cpu_total_seconds_per_window: f64,
+    pub cpu_polling_seconds_per_window: f64,
+    /// The peak resident memory of the rank's process (simulated ranks
+    /// share one process, hence one figure).
+    pub peak_rss_bytes: Option<u64>,
     pub messages_per_window: f64,
     pub bytes_per_window: f64,
     /// Communication rounds per window, and both together per internal tick
@@ -201,6 +217,14 @@ pub struct ThreadResult {
     /// phase's load imbalance, max / mean of the per-rank measured seconds,
     /// as the balancer placed the tasks and with each on its home rank.
     pub per_rank: Vec<RankFigures>,
+    /// Counted scaling: the ranks' work CPU per window in all; its ratio to
+    /// one process's (the 1-rank 1-thread run: redundancy); the largest
+    /// rank's (the critical path); and T1 / critical path, the most this
+    /// rank count could speed the work up with a free network.
+    pub cpu_sum_seconds_per_window: f64,
+    pub redundancy: Option<f64>,
+    pub critical_path_seconds_per_window: f64,
+    pub speedup_bound: Option<f64>,
     pub narrow_imbalance: Option<f64>,
     pub narrow_imbalance_home_only: Option<f64>,
 }
@@ -688,6 +712,7 @@ fn measure<E: Executor>(
     engine.restore(start)?;
     let queries_before = engine.totals.narrow_queries;
     let traffic_before = engine.executor().traffic();
+    let cpu_before = engine.executor().work_cpu_seconds();
     let mut s = Sample::default();
     let clock = Instant::now();
     for _ in 0..windows {
@@ -697,6 +722,12 @@ fn measure<E: Executor>(
         s.own.narrow += w.stage_seconds.narrow;
         s.own.commit += w.stage_seconds.commit;
         s.own.predict += w.stage_seconds.predict;
+        let (c, own) = (&w.stage_seconds.cpu, &mut s.own.cpu);
+        own.events += c.events;
+        own.broad += c.broad;
+        own.narrow += c.narrow;
+        own.commit += c.commit;
+        own.predict += c.predict;
         s.predicted_layers += w.predicted_layers;
         s.detected_layers += w.detected_layers;
         s.predicted_unreached += w.predicted_unreached;
@@ -727,6 +758,9 @@ fn measure<E: Executor>(
     s.own.bytes = traffic.bytes - traffic_before.bytes;
     s.own.collectives = traffic.collectives - traffic_before.collectives;
     s.own.exchanges = traffic.exchanges - traffic_before.exchanges;
+    s.own.cpu_total = engine.executor().work_cpu_seconds() - cpu_before;
+    s.own.cpu_polling = (traffic.wait_cpu_ns - traffic_before.wait_cpu_ns) as f64 * 1e-9;
+    s.own.peak_rss = machine::peak_rss_bytes();
     s.ranks = vec![s.own.clone()];
     s.narrow_load = engine.narrow_load.clone();
     Ok(s)
@@ -801,6 +835,16 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
             .map(|k| RankFigures {
                 rank: k,
                 stage_seconds_per_window: stages(&|s| &s.ranks[k]),
+                cpu_seconds_per_window: StageCpu {
+                    events: of_rank(&|s| &s.ranks[k], &|x| x.cpu.events),
+                    broad: of_rank(&|s| &s.ranks[k], &|x| x.cpu.broad),
+                    narrow: of_rank(&|s| &s.ranks[k], &|x| x.cpu.narrow),
+                    commit: of_rank(&|s| &s.ranks[k], &|x| x.cpu.commit),
+                    predict: of_rank(&|s| &s.ranks[k], &|x| x.cpu.predict),
+                },
+                cpu_total_seconds_per_window: of_rank(&|s| &s.ranks[k], &|x| x.cpu_total),
+                cpu_polling_seconds_per_window: of_rank(&|s| &s.ranks[k], &|x| x.cpu_polling),
+                peak_rss_bytes: samples.iter().filter_map(|s| s.ranks[k].peak_rss).max(),
                 messages_per_window: of_rank(&|s| &s.ranks[k], &|x| x.messages as f64),
                 bytes_per_window: of_rank(&|s| &s.ranks[k], &|x| x.bytes as f64),
                 collectives_per_window: of_rank(&|s| &s.ranks[k], &|x| x.collectives as f64),
@@ -811,6 +855,14 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
                 }),
             })
             .collect();
+        let per_rank: Vec<RankFigures> = per_rank;
+        let cpu_sum: f64 = per_rank
+            .iter()
+            .map(|k| k.cpu_total_seconds_per_window)
+            .sum();
+        let critical_path = (per_rank.iter())
+            .map(|k| k.cpu_total_seconds_per_window)
+            .fold(0.0, f64::max);
         let imbalance = |f: &dyn Fn(&NarrowLoad) -> &[f64]| {
             let v: Vec<f64> = samples
                 .iter()
@@ -839,6 +891,10 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
             narrow_queries_per_second: med(&|s| s.narrow_queries as f64 / s.own.narrow),
             speedup: None,
             parallel_efficiency: None,
+            cpu_sum_seconds_per_window: cpu_sum,
+            redundancy: None,
+            critical_path_seconds_per_window: critical_path,
+            speedup_bound: None,
             per_rank,
             narrow_imbalance: imbalance(&|l| &l.balanced),
             narrow_imbalance_home_only: imbalance(&|l| &l.home_only),
@@ -854,6 +910,18 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
             let speedup = t1 / t.wall_seconds_per_window;
             t.speedup = Some(speedup);
             t.parallel_efficiency = Some(speedup / (t.ranks * t.threads) as f64);
+        }
+    }
+    // Counted scaling against one process's work CPU.
+    if let Some(cpu1) = (r.results.iter())
+        .find(|t| t.threads == 1 && t.ranks == 1)
+        .map(|t| t.cpu_sum_seconds_per_window)
+        .filter(|&c| c > 0.0)
+    {
+        for t in &mut r.results {
+            t.redundancy = Some(t.cpu_sum_seconds_per_window / cpu1);
+            t.speedup_bound = (t.critical_path_seconds_per_window > 0.0)
+                .then(|| cpu1 / t.critical_path_seconds_per_window);
         }
     }
 }
@@ -987,8 +1055,25 @@ fn table(r: &BenchReport) -> String {
                 .map_or("—".into(), |x| format!("{:.0} %", 100.0 * x)),
         );
     }
+    let ratio = |x: Option<f64>| x.map_or("—".into(), |x| format!("{x:.2}"));
+    let _ = writeln!(
+        s,
+        "\ncounted (work CPU per window, polling for peers left out; T1 = one process's):"
+    );
+    for t in &r.results {
+        let _ = writeln!(
+            s,
+            "  {:>3} ranks × {:>2} threads: Σ cpu {} ms, redundancy {}, critical path {} ms, \
+             speed-up bound T1 / critical path {}",
+            t.ranks,
+            t.threads,
+            ms(t.cpu_sum_seconds_per_window),
+            ratio(t.redundancy),
+            ms(t.critical_path_seconds_per_window),
+            ratio(t.speedup_bound)
+        );
+    }
     for t in r.results.iter().filter(|t| t.ranks > 1) {
-        let ratio = |x: Option<f64>| x.map_or("—".into(), |x| format!("{x:.2}"));
         let _ = writeln!(
             s,
             "\n{} ranks × {} threads: narrow-phase imbalance (max / mean) {} with the balancer, \
@@ -1018,6 +1103,21 @@ fn table(r: &BenchReport) -> String {
                 k.collectives_per_window,
                 k.exchanges_per_window,
                 k.rounds_per_internal_tick
+            );
+            let c = &k.cpu_seconds_per_window;
+            let _ = writeln!(
+                s,
+                "            cpu: events {} broad {} narrow {} commit {} predict {}, in all {} ms \
+                 per window ({} ms polling for peers left out); peak memory {}",
+                ms(c.events),
+                ms(c.broad),
+                ms(c.narrow),
+                ms(c.commit),
+                ms(c.predict),
+                ms(k.cpu_total_seconds_per_window),
+                ms(k.cpu_polling_seconds_per_window),
+                k.peak_rss_bytes
+                    .map_or("unknown".into(), |b| format!("{:.1} MB", b as f64 / 1e6)),
             );
         }
     }
