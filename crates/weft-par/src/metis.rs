@@ -110,8 +110,8 @@ mod tests {
         let topo = Topology::build(nv, &tris).unwrap();
         let cloth = vec![true; tris.len()];
         for parts in [4, 16, 64] {
-            let m = Partitioning::build(&Metis, parts, &tris, &cloth, &topo, nv).unwrap();
-            let c = Partitioning::build(&Contiguous, parts, &tris, &cloth, &topo, nv).unwrap();
+            let m = Partitioning::build(&Metis, parts, 1, &tris, &cloth, &topo, nv).unwrap();
+            let c = Partitioning::build(&Contiguous, parts, 1, &tris, &cloth, &topo, nv).unwrap();
             assert_eq!(m.count, parts);
             let mut sizes = vec![0usize; parts];
             for &p in &m.of_triangle {
@@ -126,7 +126,7 @@ mod tests {
                 assert!(cut(&m, &topo) < cut(&c, &topo), "P = {parts}");
             }
             // The same machine makes the same parts.
-            let again = Partitioning::build(&Metis, parts, &tris, &cloth, &topo, nv).unwrap();
+            let again = Partitioning::build(&Metis, parts, 1, &tris, &cloth, &topo, nv).unwrap();
             assert_eq!(again, m);
         }
     }
@@ -141,7 +141,7 @@ mod tests {
         let topo = Topology::build(2 * nv, &tris).unwrap();
         let mut cloth = vec![true; tris.len()];
         cloth[n..n + 10].fill(false);
-        let m = Partitioning::build(&Metis, 8, &tris, &cloth, &topo, 2 * nv).unwrap();
+        let m = Partitioning::build(&Metis, 8, 1, &tris, &cloth, &topo, 2 * nv).unwrap();
         assert!(m.of_triangle[n..n + 10].iter().all(|&p| p == NONE));
         assert!(m.of_triangle[..n].iter().all(|&p| p < 8));
         assert_eq!(m.method, "metis");

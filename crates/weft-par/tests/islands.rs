@@ -67,6 +67,7 @@ fn scene(rng: &mut Rng, case: usize) -> WorldSpec {
         },
         limits: LimitsConfig::default(),
         partitions: 4,
+        workers: 1,
     }
 }
 

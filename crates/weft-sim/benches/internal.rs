@@ -40,6 +40,7 @@ fn main() {
         },
         limits: LimitsConfig::default(),
         partitions: 1,
+        workers: 1,
     };
     let world = World::build(&spec).expect("world");
     let f = &world.internal;

@@ -267,7 +267,7 @@ mod tests {
             .flat_map(|q| [[q, q + 1, q + 5], [q + 1, q + 6, q + 5]])
             .collect();
         let topo = Topology::build(10, &tris).unwrap();
-        let p = Partitioning::build(&Contiguous, 4, &tris, &[true; 8], &topo, 10).unwrap();
+        let p = Partitioning::build(&Contiguous, 4, 1, &tris, &[true; 8], &topo, 10).unwrap();
         let mut keys: Vec<StencilKey> = Vec::new();
         for v in 0..10 {
             for t in &tris {

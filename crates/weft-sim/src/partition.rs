@@ -57,12 +57,15 @@ impl Partitioner for Contiguous {
     }
 }
 
-/// The partition count used when a scene asks for `partitions = 0` (auto):
-/// one part per 512 cloth triangles, between 1 and 256 — many more parts
-/// than the cores of a workstation once a mesh is large enough to need them,
-/// and never so small that scheduling costs more than the work.
-pub fn auto_count(cloth_triangles: usize) -> usize {
-    (cloth_triangles / 512).clamp(1, 256)
+/// The partition count used when a scene asks for `partitions = 0` (auto),
+/// for a run on `workers` = ranks × threads: one part per 512 cloth
+/// triangles, and at least 4 per worker (the over-decomposition the ranks'
+/// placement and the threads' balance need), but no part under 32
+/// triangles (scheduling would cost more than the work). Results never
+/// depend on the count.
+pub fn auto_count(cloth_triangles: usize, workers: usize) -> usize {
+    let wanted = (cloth_triangles / 512).max(4 * workers.max(1));
+    wanted.min(cloth_triangles / 32).max(1)
 }
 
 /// The partition layout of a built world.
@@ -80,11 +83,12 @@ pub struct Partitioning {
 }
 
 impl Partitioning {
-    /// Runs `partitioner` for `requested` parts (0 = [`auto_count`]) and checks
-    /// its answer.
+    /// Runs `partitioner` for `requested` parts (0 = [`auto_count`] for
+    /// `workers`) and checks its answer.
     pub fn build(
         partitioner: &dyn Partitioner,
         requested: usize,
+        workers: usize,
         triangles: &[[u32; 3]],
         is_cloth: &[bool],
         topology: &Topology,
@@ -92,7 +96,7 @@ impl Partitioning {
     ) -> Result<Self, String> {
         let cloth = is_cloth.iter().filter(|&&c| c).count();
         let wanted = if requested == 0 {
-            auto_count(cloth)
+            auto_count(cloth, workers)
         } else {
             requested
         };
@@ -188,7 +192,7 @@ mod tests {
         };
         let topo = Topology::build(12, &mesh.triangles).unwrap();
         let cloth = [true, true, true, true, false, false, false, false];
-        let p = Partitioning::build(&Contiguous, 2, &tris, &cloth, &topo, 12).unwrap();
+        let p = Partitioning::build(&Contiguous, 2, 1, &tris, &cloth, &topo, 12).unwrap();
         assert_eq!(p.count, 2);
         assert_eq!(p.of_triangle[..4], [0, 0, 1, 1]);
         assert!(p.of_triangle[4..].iter().all(|&x| x == NONE));
@@ -201,17 +205,38 @@ mod tests {
         // Asking for more parts than cloth triangles gets one per triangle;
         // 0 asks for the automatic count.
         assert_eq!(
-            Partitioning::build(&Contiguous, 99, &tris, &cloth, &topo, 12)
+            Partitioning::build(&Contiguous, 99, 1, &tris, &cloth, &topo, 12)
                 .unwrap()
                 .count,
             4
         );
         assert_eq!(
-            Partitioning::build(&Contiguous, 0, &tris, &cloth, &topo, 12)
+            Partitioning::build(&Contiguous, 0, 1, &tris, &cloth, &topo, 12)
                 .unwrap()
                 .count,
             1
         );
+    }
+
+    /// One part per 512 cloth triangles, at least 4 per worker, no part
+    /// under 32 triangles, never none; no cap at 256 (the scale-out issue).
+    #[test]
+    fn the_automatic_count_over_decomposes_for_the_workers() {
+        assert_eq!(auto_count(0, 1), 1);
+        assert_eq!(auto_count(100, 1), 3); // 4 wanted, 32 triangles at least
+        assert_eq!(auto_count(20_000, 1), 39);
+        assert_eq!(auto_count(20_000, 2), 39);
+        assert_eq!(auto_count(20_000, 16), 64);
+        assert_eq!(auto_count(20_000, 0), auto_count(20_000, 1));
+        // The 100k twister: 199,920 cloth triangles.
+        assert_eq!(auto_count(199_920, 1), 390);
+        assert_eq!(auto_count(199_920, 384), 1536);
+        assert_eq!(auto_count(199_920, 768), 3072);
+        assert_eq!(auto_count(199_920, 10_000), 199_920 / 32);
+        for (c, w) in [(1, 1), (31, 4), (5000, 3), (1 << 20, 1000)] {
+            let n = auto_count(c, w);
+            assert!(n >= 1 && (n == 1 || n * 32 <= c), "{c} {w}: {n}");
+        }
     }
 
     #[test]
@@ -227,7 +252,7 @@ mod tests {
         }
         let tris = vec![[0, 1, 2], [1, 3, 2]];
         let topo = Topology::build(4, &tris).unwrap();
-        let e = Partitioning::build(&Bad, 2, &tris, &[true, true], &topo, 4).unwrap_err();
+        let e = Partitioning::build(&Bad, 2, 1, &tris, &[true, true], &topo, 4).unwrap_err();
         assert!(e.contains("triangle 0 in part 2 of 2"), "{e}");
     }
 }

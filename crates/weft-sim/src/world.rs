@@ -68,6 +68,9 @@ pub struct WorldSpec {
     /// Number of partitions the cloth triangles are split into (0: automatic,
     /// see [`crate::partition::auto_count`]; results do not depend on it).
     pub partitions: usize,
+    /// Ranks × threads the world will run on (0 counts as 1): the
+    /// automatic partition count gives each at least 4 partitions.
+    pub workers: usize,
 }
 
 /// An object after concatenation.
@@ -332,6 +335,7 @@ impl World {
         let partitioning = Partitioning::build(
             partitioner,
             spec.partitions,
+            spec.workers,
             &all.triangles,
             &is_cloth,
             &topology,

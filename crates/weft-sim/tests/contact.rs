@@ -78,6 +78,7 @@ fn spec(objects: Vec<ObjectSpec>, gravity: DVec3, steps_per_window: u64) -> Worl
         },
         limits: LimitsConfig::default(),
         partitions: 1,
+        workers: 1,
     }
 }
 

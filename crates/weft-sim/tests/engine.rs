@@ -29,6 +29,7 @@ fn spec(objects: Vec<ObjectSpec>, gravity: DVec3, steps_per_window: u64, beta: f
         },
         limits: LimitsConfig::default(),
         partitions: 1,
+        workers: 1,
     }
 }
 

@@ -54,6 +54,7 @@ fn spec(
         },
         limits: LimitsConfig::default(),
         partitions: 1,
+        workers: 1,
     }
 }
 

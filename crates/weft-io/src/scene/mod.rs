@@ -1465,6 +1465,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
         },
         limits: LimitsConfig::default(),
         partitions: file.partitions,
+        workers: 1,
     };
     if !(file.contact.friction >= 0.0 && file.contact.friction.is_finite()) {
         return Err(invalid(

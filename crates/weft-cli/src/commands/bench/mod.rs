@@ -354,7 +354,12 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
     }
     overrides.extend(a.overrides.iter().cloned());
     let scene = load_scene(&a.scene, &overrides)?;
-    let world = weft_par::build_world(&scene.world)?;
+    // One world for every run: partitioned for the most workers asked for
+    // (the results do not depend on it).
+    let mut spec = scene.world.clone();
+    spec.workers = rank_list.iter().max().copied().unwrap_or(1)
+        * a.threads.iter().max().copied().unwrap_or(1).max(1);
+    let world = weft_par::build_world(&spec)?;
     let hash = scene_hash(&scene, &world);
     let checkpoint = a.checkpoint.clone().unwrap_or_else(|| {
         let size = a.size.map_or("default".to_string(), |n| n.to_string());

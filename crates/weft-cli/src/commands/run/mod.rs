@@ -392,9 +392,18 @@ pub(crate) struct Prepared {
 }
 
 impl Prepared {
-    /// Builds `scene`'s world and, when `resume`, reads `out`'s checkpoint.
-    pub(crate) fn new(scene: &Scene, out: &Path, resume: bool) -> anyhow::Result<Self> {
-        let world = weft_par::build_world(&scene.world)?;
+    /// Builds `scene`'s world for `workers` = ranks × threads (the
+    /// automatic partition count depends on it, the results do not) and,
+    /// when `resume`, reads `out`'s checkpoint.
+    pub(crate) fn new(
+        scene: &Scene,
+        out: &Path,
+        resume: bool,
+        workers: usize,
+    ) -> anyhow::Result<Self> {
+        let mut spec = scene.world.clone();
+        spec.workers = workers;
+        let world = weft_par::build_world(&spec)?;
         let hash = scene_hash(scene, &world);
         let checkpoint = match resume {
             true => Some(read_resumable(out, &hash)?),
@@ -410,7 +419,8 @@ impl Prepared {
 
 /// Runs a job: see the module documentation for what it writes.
 pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSummary> {
-    let prepared = Prepared::new(job.scene, job.out, job.resume)?;
+    let workers = exec.ranks() * exec.threads_per_rank();
+    let prepared = Prepared::new(job.scene, job.out, job.resume, workers)?;
     execute_prepared(job, prepared, exec)
 }
 

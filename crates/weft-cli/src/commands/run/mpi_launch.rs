@@ -48,7 +48,11 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     let rank = transport.rank();
     // Everything a rank could refuse before the run's first collective.
     let setup = prepare(&a).and_then(|(scene, out, resume)| {
-        let prepared = Prepared::new(&scene, &out, resume)?;
+        let threads = match a.threads {
+            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            n => n,
+        };
+        let prepared = Prepared::new(&scene, &out, resume, transport.size() * threads)?;
         Ok((scene, out, resume, prepared))
     });
     let failed = setup
