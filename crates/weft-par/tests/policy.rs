@@ -14,7 +14,9 @@
 use std::path::Path;
 
 use weft_io::scene::load_scene;
-use weft_sim::{Engine, Serial};
+use weft_par::ranks::in_process;
+use weft_par::Threads;
+use weft_sim::{Engine, Executor, Serial};
 
 /// One activation and retirement policy.
 #[derive(Clone, Copy, Debug)]
@@ -197,4 +199,41 @@ fn policy_keys_are_not_part_of_the_scene_fingerprint() {
         base
     );
     assert_ne!(print(&["contact.friction=0.1"]), base);
+}
+
+/// With prediction on, the layer set too (hence the state hash) is the same
+/// on every executor: the predictor decides from state every rank holds.
+#[test]
+fn prediction_is_the_same_on_threads_and_ranks() {
+    fn hash<E: Executor>(exec: E) -> (String, u64) {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/crumple.toml");
+        let set: Vec<String> = [
+            "size=300",
+            "time.end=0.2",
+            "time.steps_per_window=25",
+            "partitions=6",
+            "contact.predict=true",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        let scene = load_scene(&path, &set).unwrap();
+        let world = weft_par::build_world(&scene.world).unwrap();
+        let mut e = Engine::new(world, exec).unwrap();
+        let end = e.world.lattice.window_end_at_or_after(scene.end_time);
+        let mut predicted = 0;
+        while e.world.tick < end {
+            predicted += e.step_window().unwrap().predicted_layers;
+        }
+        (e.state_hash(), predicted)
+    }
+    let reference = hash(Serial);
+    assert!(reference.1 > 0, "nothing predicted");
+    assert_eq!(hash(Threads::new(2).unwrap()), reference, "2 threads");
+    for ranks in [2, 3] {
+        let outcomes = in_process(ranks, |_| Threads::new(1).unwrap(), hash);
+        for (rank, o) in outcomes.iter().enumerate() {
+            assert_eq!(*o, reference, "rank {rank} of {ranks}");
+        }
+    }
 }
