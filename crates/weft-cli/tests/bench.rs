@@ -132,10 +132,7 @@ fn bench_reports_throughput_and_efficiency_from_a_checkpoint() {
         );
         let wall = positive(r, "wall_seconds_per_window");
         let st = &r["stage_seconds_per_window"];
-        let stages: f64 = ["events", "broad", "narrow", "commit"]
-            .iter()
-            .map(|k| positive(st, k))
-            .sum();
+        let stages = four_stages(st);
         assert!(stages <= wall * 1.0001, "stages {stages} > wall {wall}");
         positive(r, "internal_evaluations_per_core_second");
         positive(r, "internal_evaluations_per_events_core_second");
@@ -218,6 +215,14 @@ fn missing_checkpoint_and_bad_options_are_errors() {
     assert!(err.contains("junk.wckp"), "{err}");
 }
 
+/// The sum of the four main stages' figures in `obj`, each positive.
+fn four_stages(obj: &serde_json::Value) -> f64 {
+    ["events", "broad", "narrow", "commit"]
+        .iter()
+        .map(|k| positive(obj, k))
+        .sum()
+}
+
 #[test]
 fn bench_over_ranks_reports_traffic_and_narrow_imbalance() {
     let tmp = tempfile::tempdir().unwrap();
@@ -270,10 +275,7 @@ fn bench_over_ranks_reports_traffic_and_narrow_imbalance() {
     for r in ranks {
         let total = positive(r, "cpu_total_seconds_per_window");
         let cpu = &r["cpu_seconds_per_window"];
-        let stages: f64 = ["events", "broad", "narrow", "commit"]
-            .iter()
-            .map(|k| positive(cpu, k))
-            .sum();
+        let stages = four_stages(cpu);
         assert!(
             stages <= total * 1.05 + 1e-3,
             "stages {stages} > total {total}"

@@ -133,3 +133,13 @@ pub struct StageCpu {
     pub commit: f64,
     pub predict: f64,
 }
+
+impl std::ops::AddAssign for StageCpu {
+    fn add_assign(&mut self, o: Self) {
+        self.events += o.events;
+        self.broad += o.broad;
+        self.narrow += o.narrow;
+        self.commit += o.commit;
+        self.predict += o.predict;
+    }
+}

@@ -727,12 +727,7 @@ fn measure<E: Executor>(
         s.own.narrow += w.stage_seconds.narrow;
         s.own.commit += w.stage_seconds.commit;
         s.own.predict += w.stage_seconds.predict;
-        let (c, own) = (&w.stage_seconds.cpu, &mut s.own.cpu);
-        own.events += c.events;
-        own.broad += c.broad;
-        own.narrow += c.narrow;
-        own.commit += c.commit;
-        own.predict += c.predict;
+        s.own.cpu += w.stage_seconds.cpu;
         s.predicted_layers += w.predicted_layers;
         s.detected_layers += w.detected_layers;
         s.predicted_unreached += w.predicted_unreached;
