@@ -142,6 +142,9 @@ fn bench_reports_throughput_and_efficiency_from_a_checkpoint() {
         positive(r, "speedup");
     }
     assert_eq!(results[0]["parallel_efficiency"], 1.0);
+    // Every queried vertex has at least its start and end breakpoints.
+    let b = positive(&j, "breakpoints_per_queried_vertex");
+    assert!(b >= 2.0, "{b} breakpoints per queried vertex");
 }
 
 #[test]

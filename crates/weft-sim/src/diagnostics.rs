@@ -60,6 +60,12 @@ pub struct WindowStats {
     pub predicted_unreached: u64,
     /// Trajectory breakpoints of the committed pass.
     pub breakpoints: u64,
+    /// The breakpoints the committed pass's narrow phase walked: summed over
+    /// its candidate stencils' four vertices (divided by `4 · candidates`,
+    /// the trajectory length of a queried vertex, what the narrow phase's
+    /// cost per query follows).
+    #[serde(default)]
+    pub queried_breakpoints: u64,
     /// Smallest stencil distance seen at layer events and at the window end (m);
     /// `null` when no stencil was near.
     pub min_separation: Option<f64>,

@@ -607,6 +607,10 @@ impl<E: Executor> Engine<E> {
             detected_layers: 0,
             predicted_unreached: 0,
             breakpoints: self.traj.breakpoints() as u64,
+            queried_breakpoints: (candidate_keys.iter())
+                .flat_map(|k| k.v)
+                .map(|i| self.traj.count(i as usize) as u64)
+                .sum(),
             min_separation: min_sep.is_finite().then_some(min_sep),
             kinetic_energy: e.0,
             potential_energy: e.1 + e.2,

@@ -112,6 +112,9 @@ struct Sample {
     predicted_layers: u64,
     detected_layers: u64,
     predicted_unreached: u64,
+    /// Committed passes' candidates and the breakpoints their vertices had.
+    candidates: u64,
+    queried_breakpoints: u64,
     /// Narrow-phase queries over all passes (rolled-back ones included).
     narrow_queries: u64,
     active_stencils: u64,
@@ -258,6 +261,9 @@ pub struct BenchReport {
     pub predicted_layers_per_window: f64,
     pub detected_layers_per_window: f64,
     pub predicted_unreached_per_window: f64,
+    /// Breakpoints per vertex of a committed pass's narrow-phase query: the
+    /// trajectory length the narrow phase's cost follows.
+    pub breakpoints_per_queried_vertex: Option<f64>,
     pub narrow_queries_per_window: f64,
     pub internal_evaluations_per_window: f64,
     pub layer_events_per_window: f64,
@@ -420,6 +426,7 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         predicted_layers_per_window: 0.0,
         detected_layers_per_window: 0.0,
         predicted_unreached_per_window: 0.0,
+        breakpoints_per_queried_vertex: None,
         narrow_queries_per_window: 0.0,
         internal_evaluations_per_window: 0.0,
         layer_events_per_window: 0.0,
@@ -731,6 +738,8 @@ fn measure<E: Executor>(
         s.predicted_layers += w.predicted_layers;
         s.detected_layers += w.detected_layers;
         s.predicted_unreached += w.predicted_unreached;
+        s.candidates += w.candidates;
+        s.queried_breakpoints += w.queried_breakpoints;
         s.own.internal += w.stage_seconds.internal;
         // Every pass runs the window's internal ticks (a pass cut short by a
         // blow-up, which is rolled back, would count a little high).
@@ -786,6 +795,8 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
     r.predicted_layers_per_window = first.predicted_layers as f64 / windows;
     r.detected_layers_per_window = first.detected_layers as f64 / windows;
     r.predicted_unreached_per_window = first.predicted_unreached as f64 / windows;
+    r.breakpoints_per_queried_vertex = (first.candidates > 0)
+        .then(|| first.queried_breakpoints as f64 / (4 * first.candidates) as f64);
     r.narrow_queries_per_window = first.narrow_queries as f64 / windows;
     r.internal_evaluations_per_window = first.internal_evaluations as f64 / windows;
     r.layer_events_per_window = first.layer_events as f64 / windows;
@@ -963,10 +974,12 @@ fn table(r: &BenchReport) -> String {
     let _ = writeln!(s, "machine     {}", r.machine.describe());
     let _ = writeln!(
         s,
-        "per window  {:.2} rollbacks, {:.0} narrow-phase queries, {:.4e} internal stencil \
-         evaluations, {:.4e} penalty-layer evaluations",
+        "per window  {:.2} rollbacks, {:.0} narrow-phase queries ({} breakpoints per queried \
+         vertex), {:.4e} internal stencil evaluations, {:.4e} penalty-layer evaluations",
         r.rollbacks_per_window,
         r.narrow_queries_per_window,
+        r.breakpoints_per_queried_vertex
+            .map_or("—".into(), |b| format!("{b:.1}")),
         r.internal_evaluations_per_window,
         r.layer_events_per_window
     );
