@@ -109,8 +109,8 @@ pub struct Engine<E: Executor = Serial> {
     pub world: World,
     exec: E,
     traj: Trajectories,
-    /// The layer predictor's scratch (`predict.rs`).
-    predictor: Predictor,
+    /// The layer predictor's scratch (`predict.rs`), made on first use.
+    predictor: Option<Predictor>,
     ws: Workspace,
     /// The broad phase's trees and scratch, reused across passes.
     broad: BroadPhase,
@@ -170,7 +170,7 @@ impl<E: Executor> Engine<E> {
             world,
             exec,
             traj,
-            predictor: Predictor::new(n, share.as_ref().map(|s| (s.owner.clone(), s.rank as u32))),
+            predictor: None,
             totals: RunTotals::default(),
             ccd: CcdStats::default(),
             interrupt: None,

@@ -158,13 +158,19 @@ impl<E: Executor> Engine<E> {
     /// which every rank has in full.
     pub(super) fn predict_layers(&mut self, resolved: u32) -> Result<Predicted, CommError> {
         let _span = trace::span("predict");
+        // Made on first use: a run without prediction keeps no memory for it.
+        let n = self.world.num_vertices();
+        let share = &self.share;
+        let predictor = self.predictor.get_or_insert_with(|| {
+            Predictor::new(n, share.as_ref().map(|s| (s.owner.clone(), s.rank as u32)))
+        });
         let w = &self.world;
         // Accelerations from the internal forces and gravity (no contact:
         // the penalty forces only ever push apart).
         let (bounds, out) = self.ws.internal_scratch();
         w.internal
             .evaluate(&self.exec, bounds, &w.x, &w.v, out, None);
-        let acc = &mut self.predictor.acc;
+        let acc = &mut predictor.acc;
         acc.resize(w.x.len(), DVec3::ZERO);
         for (i, a) in acc.iter_mut().enumerate() {
             *a = if w.inv_mass[i] > 0.0 {
@@ -196,7 +202,7 @@ impl<E: Executor> Engine<E> {
                 None => w.x[i] + w.v[i] * t + clamp_length(acc[i] * (0.5 * t * t), reach),
             }
         };
-        let traj = &mut self.predictor.traj;
+        let traj = &mut predictor.traj;
         traj.begin(w.tick, &w.x);
         for i in 0..w.x.len() {
             for k in 1..=HORIZON_HALF_WINDOWS {
@@ -208,7 +214,7 @@ impl<E: Executor> Engine<E> {
             &self.exec,
             &w.triangles,
             &w.inv_mass,
-            &self.predictor.traj,
+            &predictor.traj,
             0.5 * w.schedule.eta_1,
         )?;
         let deeper: Vec<bool> = self.exec.map(keys.len(), &|n| {

@@ -842,7 +842,7 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
             }),
         };
         let evals = first.internal_evaluations as f64;
-        let per_rank = (0..ranks)
+        let per_rank: Vec<RankFigures> = (0..ranks)
             .map(|k| RankFigures {
                 rank: k,
                 stage_seconds_per_window: stages(&|s| &s.ranks[k]),
@@ -866,7 +866,6 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
                 }),
             })
             .collect();
-        let per_rank: Vec<RankFigures> = per_rank;
         let cpu_sum: f64 = per_rank
             .iter()
             .map(|k| k.cpu_total_seconds_per_window)

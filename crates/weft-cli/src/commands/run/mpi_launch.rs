@@ -48,12 +48,10 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     let rank = transport.rank();
     // Everything a rank could refuse before the run's first collective.
     let setup = prepare(&a).and_then(|(scene, out, resume)| {
-        let threads = match a.threads {
-            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
-            n => n,
-        };
-        let prepared = Prepared::new(&scene, &out, resume, transport.size() * threads)?;
-        Ok((scene, out, resume, prepared))
+        let threads = Threads::new(a.threads).context("cannot start the worker threads")?;
+        let workers = transport.size() * threads.threads();
+        let prepared = Prepared::new(&scene, &out, resume, workers)?;
+        Ok((scene, out, resume, prepared, threads))
     });
     let failed = setup
         .as_ref()
@@ -79,9 +77,8 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
         }
         return Ok(ExitCode::from(1));
     }
-    let (scene, out, resume, prepared) = setup?;
+    let (scene, out, resume, prepared, threads) = setup?;
     let job = new_job(&a, &scene, &out, resume)?;
-    let threads = Threads::new(a.threads).context("cannot start the worker threads")?;
     let exec = Ranks::new(&transport, threads.clone());
     let result = threads.install(move || execute_prepared(job, prepared, exec));
     if let Some(path) = &a.trace {
