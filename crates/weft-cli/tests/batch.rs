@@ -26,9 +26,13 @@ fn lines(path: &Path) -> Vec<serde_json::Value> {
 #[test]
 fn stop_after_exits_75_with_a_preview_of_the_frames_so_far() {
     let dir = tempfile::tempdir().unwrap();
-    let o = crumple(dir.path(), &["--stop-after", "1", "--quiet"])
-        .output()
-        .unwrap();
+    // (to 0.6 s: a run of far more than the one second it is stopped after)
+    let o = crumple(
+        dir.path(),
+        &["--set", "time.end=0.6", "--stop-after", "1", "--quiet"],
+    )
+    .output()
+    .unwrap();
     let s = stopped_summary(&o);
     assert_eq!(s["stopped_by"], "stop-after");
     let preview = ["preview.mp4", "preview.gif"]

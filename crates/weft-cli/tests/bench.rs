@@ -145,6 +145,12 @@ fn bench_reports_throughput_and_efficiency_from_a_checkpoint() {
     // Every queried vertex has at least its start and end breakpoints.
     let b = positive(&j, "breakpoints_per_queried_vertex");
     assert!(b >= 2.0, "{b} breakpoints per queried vertex");
+    // A share, when anything was certified.
+    let share = &j["block_certified_share"];
+    assert!(
+        share.is_null() || (0.0..=1.0).contains(&share.as_f64().unwrap()),
+        "{share}"
+    );
 }
 
 #[test]

@@ -336,10 +336,7 @@ fn moving_variants(x: &[DVec3; 4]) -> Vec<Moving> {
 }
 
 fn traj_of<'a>(times: &'a [Vec<f64>; 4], pts: &'a [Vec<DVec3>; 4]) -> [Trajectory<'a>; 4] {
-    std::array::from_fn(|i| Trajectory {
-        times: &times[i],
-        points: &pts[i],
-    })
+    std::array::from_fn(|i| Trajectory::new(&times[i], &pts[i]))
 }
 
 #[test]
@@ -756,9 +753,11 @@ fn degenerate_inputs_are_conservative_and_never_panic() {
         &[],              // empty
     ];
     for (k, first) in bad_times.iter().enumerate() {
-        let traj: [Trajectory<'_>; 4] = std::array::from_fn(|i| Trajectory {
-            times: if i == 0 { first } else { &good_t },
-            points: if i == 0 { &pts } else { &far },
+        let traj: [Trajectory<'_>; 4] = std::array::from_fn(|i| {
+            Trajectory::new(
+                if i == 0 { first } else { &good_t },
+                if i == 0 { &pts } else { &far },
+            )
         });
         for kind in [VF, EE] {
             assert!(proximity(kind, &traj, 0.1, &mut s), "malformed case {k}");
@@ -768,10 +767,7 @@ fn degenerate_inputs_are_conservative_and_never_panic() {
     // A single instant (one breakpoint per vertex) is a static test.
     let t1 = [0.5];
     let one = [[p(0.2, 0.2, 1.0)], [tri[0]], [tri[1]], [tri[2]]];
-    let traj: [Trajectory<'_>; 4] = std::array::from_fn(|i| Trajectory {
-        times: &t1,
-        points: &one[i],
-    });
+    let traj: [Trajectory<'_>; 4] = std::array::from_fn(|i| Trajectory::new(&t1, &one[i]));
     assert!(!proximity(VF, &traj, 0.5, &mut s));
     assert!(proximity(VF, &traj, 1.0, &mut s));
 }

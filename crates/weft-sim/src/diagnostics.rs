@@ -66,6 +66,14 @@ pub struct WindowStats {
     /// cost per query follows).
     #[serde(default)]
     pub queried_breakpoints: u64,
+    /// Time intervals the window's certificates (narrow phase and commit,
+    /// all passes) certified, and those of them certified by the
+    /// trajectories' block bounds alone, without walking a segment
+    /// (`weft_geom::ccd::bounds`).
+    #[serde(default)]
+    pub certified_intervals: u64,
+    #[serde(default)]
+    pub block_certified_intervals: u64,
     /// Smallest stencil distance seen at layer events and at the window end (m);
     /// `null` when no stencil was near.
     pub min_separation: Option<f64>,

@@ -19,12 +19,16 @@
 //! per-window cache ([`Trajectories::fetched`]), exactly, bit for bit.
 
 use glam::DVec3;
+use weft_geom::ccd::bounds::{TrajectoryBounds, FANOUT};
 use weft_geom::ccd::Trajectory;
 
 use crate::clock::Tick;
 
-/// Bytes per stored breakpoint (time + position).
-pub const BYTES_PER_BREAKPOINT: usize = std::mem::size_of::<f64>() + std::mem::size_of::<DVec3>();
+/// Bytes per stored breakpoint: time and position, and at most 7 bytes of
+/// block bounds ([`weft_geom::ccd::bounds`]: a 48-byte box per 8
+/// breakpoints, per 64, …).
+pub const BYTES_PER_BREAKPOINT: usize =
+    std::mem::size_of::<f64>() + std::mem::size_of::<DVec3>() + 7;
 
 /// The trajectories of all vertices over one window.
 #[derive(Clone, Debug, Default)]
@@ -32,6 +36,10 @@ pub struct Trajectories {
     start: Tick,
     times: Vec<Vec<f64>>,
     points: Vec<Vec<DVec3>>,
+    /// per vertex: block bounds over its breakpoints, built as they are
+    /// recorded (the narrow phase's and the commit's certificates bound
+    /// long stretches with them).
+    bounds: Vec<TrajectoryBounds>,
     /// per vertex: the time of its last breakpoint (relative ticks) and how
     /// many it has — kept for every vertex, held here or not.
     last: Vec<f64>,
@@ -40,7 +48,7 @@ pub struct Trajectories {
     holder: Vec<u32>,
     me: u32,
     /// polylines of vertices held elsewhere, received this window.
-    cache: std::collections::HashMap<u32, (Vec<f64>, Vec<DVec3>)>,
+    cache: std::collections::HashMap<u32, (Vec<f64>, Vec<DVec3>, TrajectoryBounds)>,
     total: usize,
     budget: usize,
 }
@@ -53,24 +61,36 @@ pub struct Trajectories {
 fn push_breakpoint(
     last: &mut f64,
     count: &mut u32,
-    store: Option<(&mut Vec<f64>, &mut Vec<DVec3>)>,
+    store: Option<Stored<'_>>,
     rel: f64,
     p: DVec3,
 ) -> bool {
     if *last == rel {
-        if let Some((_, points)) = store {
+        if let Some((_, points, bounds)) = store {
             *points.last_mut().expect("non-empty") = p;
+            bounds.replace_last(points.len(), p);
         }
         return false;
     }
     *last = rel;
     *count += 1;
-    if let Some((times, points)) = store {
+    if let Some((times, points, bounds)) = store {
         times.push(rel);
         points.push(p);
+        // (touches the bounds once per 8 breakpoints)
+        if (points.len() - 1) % FANOUT == 0 {
+            bounds.update(times, points);
+        }
     }
     true
 }
+
+/// A held vertex's breakpoint storage: times, points, block bounds.
+type Stored<'a> = (
+    &'a mut Vec<f64>,
+    &'a mut Vec<DVec3>,
+    &'a mut TrajectoryBounds,
+);
 
 /// The trajectories of a run of vertices (see [`Trajectories::runs`]).
 pub struct TrajectoryRun<'a> {
@@ -78,6 +98,7 @@ pub struct TrajectoryRun<'a> {
     me: u32,
     times: &'a mut [Vec<f64>],
     points: &'a mut [Vec<DVec3>],
+    bounds: &'a mut [TrajectoryBounds],
     last: &'a mut [f64],
     count: &'a mut [u32],
     holder: &'a [u32],
@@ -89,7 +110,8 @@ impl TrajectoryRun<'_> {
     #[inline]
     pub fn record(&mut self, j: usize, t: Tick, p: DVec3) -> bool {
         let rel = (t - self.start) as f64;
-        let store = (self.holder[j] == self.me).then(|| (&mut self.times[j], &mut self.points[j]));
+        let store = (self.holder[j] == self.me)
+            .then(|| (&mut self.times[j], &mut self.points[j], &mut self.bounds[j]));
         push_breakpoint(&mut self.last[j], &mut self.count[j], store, rel, p)
     }
 }
@@ -109,6 +131,7 @@ impl Trajectories {
             start: 0,
             times: vec![Vec::new(); n],
             points: vec![Vec::new(); n],
+            bounds: vec![TrajectoryBounds::default(); n],
             last: vec![0.0; n],
             count: vec![0; n],
             holder: vec![0; n],
@@ -132,6 +155,7 @@ impl Trajectories {
             if h != me {
                 self.times[i] = Vec::new();
                 self.points[i] = Vec::new();
+                self.bounds[i] = TrajectoryBounds::default();
             }
         }
         self.holder = holder;
@@ -160,6 +184,7 @@ impl Trajectories {
             if self.holder[i] == self.me {
                 self.times[i].clear();
                 self.points[i].clear();
+                self.bounds[i].clear();
                 self.times[i].push(0.0);
                 self.points[i].push(p);
             }
@@ -171,7 +196,8 @@ impl Trajectories {
     #[inline]
     pub fn record(&mut self, i: usize, t: Tick, p: DVec3) -> Result<(), BudgetExceeded> {
         let rel = (t - self.start) as f64;
-        let store = (self.holder[i] == self.me).then(|| (&mut self.times[i], &mut self.points[i]));
+        let store = (self.holder[i] == self.me)
+            .then(|| (&mut self.times[i], &mut self.points[i], &mut self.bounds[i]));
         if push_breakpoint(&mut self.last[i], &mut self.count[i], store, rel, p) {
             self.add_recorded(1)?;
         }
@@ -186,21 +212,25 @@ impl Trajectories {
         use crate::executor::split_chunks;
         let times = split_chunks(&mut self.times, bounds);
         let points = split_chunks(&mut self.points, bounds);
+        let boxes = split_chunks(&mut self.bounds, bounds);
         let last = split_chunks(&mut self.last, bounds);
         let count = split_chunks(&mut self.count, bounds);
         times
             .into_iter()
-            .zip(points)
+            .zip(points.into_iter().zip(boxes))
             .zip(last.into_iter().zip(count))
             .map(
-                |(((k, times), (_, points)), ((_, last), (_, count)))| TrajectoryRun {
-                    start,
-                    me,
-                    times,
-                    points,
-                    last,
-                    count,
-                    holder: &self.holder[bounds[k]..bounds[k + 1]],
+                |(((k, times), ((_, points), (_, boxes))), ((_, last), (_, count)))| {
+                    TrajectoryRun {
+                        start,
+                        me,
+                        times,
+                        points,
+                        bounds: boxes,
+                        last,
+                        count,
+                        holder: &self.holder[bounds[k]..bounds[k + 1]],
+                    }
                 },
             )
             .collect()
@@ -230,15 +260,20 @@ impl Trajectories {
             return Trajectory {
                 times: &self.times[i],
                 points: &self.points[i],
+                bounds: Some(&self.bounds[i]),
             };
         }
-        let (times, points) = self.cache.get(&(i as u32)).unwrap_or_else(|| {
+        let (times, points, bounds) = self.cache.get(&(i as u32)).unwrap_or_else(|| {
             panic!(
                 "rank {}: vertex {i}'s trajectory is held by rank {} and was not fetched",
                 self.me, self.holder[i]
             )
         });
-        Trajectory { times, points }
+        Trajectory {
+            times,
+            points,
+            bounds: Some(bounds),
+        }
     }
 
     /// Breakpoints of vertex `i` this window (known on every rank).
@@ -260,16 +295,23 @@ impl Trajectories {
     }
 
     /// Keeps vertex `i`'s polyline received from its holder as the words of
-    /// [`Trajectories::words_of`]; returns how many words it took.
+    /// [`Trajectories::words_of`]; returns how many words it took. Its
+    /// block bounds are built here, as the holder built its own.
     pub fn fetched(&mut self, i: usize, words: &[f64]) -> usize {
         let n = self.count[i] as usize;
         let times = words[..n].to_vec();
-        let points = words[n..4 * n]
+        let points: Vec<DVec3> = words[n..4 * n]
             .chunks_exact(3)
             .map(|c| DVec3::new(c[0], c[1], c[2]))
             .collect();
-        self.cache.insert(i as u32, (times, points));
+        let bounds = TrajectoryBounds::from_points(&times, &points);
+        self.cache.insert(i as u32, (times, points, bounds));
         4 * n
+    }
+
+    /// Bytes of block bounds held (their capacity).
+    pub fn bounds_bytes(&self) -> usize {
+        self.bounds.iter().map(TrajectoryBounds::bytes).sum()
     }
 
     /// The window's start tick.

@@ -84,6 +84,7 @@
 
 use weft_core::{DVec3, StencilKind};
 
+use super::bounds::{Aabb, TrajectoryBounds};
 use super::{interpolate, Trajectory, U};
 
 /// Safety factor `C` applied to the running error bound (see module docs).
@@ -108,12 +109,29 @@ pub fn pairs(kind: StencilKind) -> &'static [(usize, usize)] {
     }
 }
 
+/// Segments (summed over the four vertices) up to which an interval is
+/// walked segment by segment instead of bounded by blocks first.
+const LEAF_SEGMENTS: usize = 8;
+
+/// Segments (summed over the four vertices) up to which the fixed-plane
+/// hull test scans the breakpoints when their block boxes fail.
+const HULL_SCAN_SEGMENTS: usize = 0;
+
 /// `true` when the rotating plane from `na` (at `ta`) to `nb` (at `tb`)
 /// certifies `d > eta` at every instant of `[ta, tb]` for the exact
 /// trajectories. Preconditions (checked by [`super::proximity`]): finite
 /// coordinates and `eta` of magnitude `<= 2^500`, strictly increasing times,
 /// `ta <= tb` within the trajectories' span. `false` means "not certified",
-/// never "close".
+/// never "close". `walked` is set when some segment had to be walked (the
+/// block bounds alone did not certify the interval).
+///
+/// With [block bounds](super::bounds) on all four trajectories a long
+/// interval is first tested against the boxes of the breakpoints covering
+/// it ([`boxes_apart`]); where that fails, it is cut at a middle breakpoint
+/// (the normal there interpolated: any value is valid, each piece is
+/// certified on its own, see the module docs) down to intervals of at most
+/// [`LEAF_SEGMENTS`] segments, which are walked.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn certify(
     kind: StencilKind,
     traj: &[Trajectory<'_>; 4],
@@ -122,10 +140,163 @@ pub(crate) fn certify(
     na: DVec3,
     nb: DVec3,
     eta: f64,
+    walked: &mut bool,
 ) -> bool {
     if ta.is_nan() || tb.is_nan() || ta > tb {
         return false;
     }
+    let [Some(b0), Some(b1), Some(b2), Some(b3)] = traj.map(|tr| tr.bounds) else {
+        *walked = true;
+        return certify_segments(kind, traj, ta, tb, na, nb, eta);
+    };
+    let blocks = Blocks {
+        kind,
+        traj,
+        bounds: [b0, b1, b2, b3],
+        eta,
+    };
+    let ranges: [(usize, usize); 4] = std::array::from_fn(|i| {
+        let tr = &traj[i];
+        covering(tr.times, (0, tr.times.len() - 1), ta, tb)
+    });
+    blocks.certify(ranges, ta, tb, na, nb, walked)
+}
+
+/// The block-bounded recursion of [`certify`].
+struct Blocks<'a, 'b> {
+    kind: StencilKind,
+    traj: &'a [Trajectory<'b>; 4],
+    bounds: [&'a TrajectoryBounds; 4],
+    eta: f64,
+}
+
+impl Blocks<'_, '_> {
+    /// [`certify`] on `[ta, tb]`, whose covering breakpoints are `ranges`.
+    fn certify(
+        &self,
+        ranges: [(usize, usize); 4],
+        ta: f64,
+        tb: f64,
+        na: DVec3,
+        nb: DVec3,
+        walked: &mut bool,
+    ) -> bool {
+        let segments: usize = ranges.iter().map(|&(k0, k1)| k1 - k0).sum();
+        if segments <= LEAF_SEGMENTS {
+            *walked = true;
+            return certify_segments(self.kind, self.traj, ta, tb, na, nb, self.eta);
+        }
+        let traj = self.traj;
+        let boxes: [Aabb; 4] =
+            std::array::from_fn(|i| self.bounds[i].cover(traj[i].points, ranges[i].0, ranges[i].1));
+        if boxes_apart(self.kind, &boxes, na, nb, self.eta) {
+            return true;
+        }
+        // Cut at the middle breakpoint of the vertex with the most segments:
+        // strictly inside (ta, tb), since that vertex has at least two.
+        let (v, &(k0, k1)) = (ranges.iter().enumerate())
+            .max_by_key(|(_, &(k0, k1))| k1 - k0)
+            .expect("four vertices");
+        let m = (k0 + k1) / 2;
+        let s = traj[v].times[m];
+        let ns = na + (nb - na) * ((s - ta) / (tb - ta));
+        let mut left = ranges;
+        let mut right = ranges;
+        for i in 0..4 {
+            if i == v {
+                left[i].1 = m;
+                right[i].0 = m;
+            } else {
+                left[i] = covering(traj[i].times, ranges[i], ta, s);
+                right[i] = covering(traj[i].times, ranges[i], s, tb);
+            }
+        }
+        self.certify(left, ta, s, na, ns, walked) && self.certify(right, s, tb, ns, nb, walked)
+    }
+}
+
+/// Breakpoint indices `k0 ..= k1` covering `[ta, tb]` on a polyline with
+/// breakpoint `times`: from the last at or before `ta` to the first at or
+/// after `tb`, searched within `within`, a range that covers `[ta, tb]`.
+#[inline]
+fn covering(times: &[f64], within: (usize, usize), ta: f64, tb: f64) -> (usize, usize) {
+    let (w0, w1) = within;
+    let span = &times[w0..=w1];
+    let k0 = w0 + span.partition_point(|&s| s <= ta).saturating_sub(1);
+    let k1 = w0 + span.partition_point(|&s| s < tb).min(span.len() - 1);
+    (k0, k1.max(k0))
+}
+
+/// Box certificate: every vertex `i` stays in the box `boxes[i]` over an
+/// interval on which the normal rotates linearly from `na` to `nb`.
+///
+/// For `n(t) = (1 - s) na + s nb` and any `d = x_i - x_j` with `x_i` in box
+/// `i` (first primitive) and `x_j` in box `j` (second),
+/// `n(t) . d >= min(na . d, nb . d)` and `|n(t)| <= max(|na|, |nb|)`; and
+/// `min over the boxes of n . (x_i - x_j) = n . c_i - n . c_j` with `c_i`
+/// the lowest corner of box `i` along `n` and `c_j` the highest of box `j`.
+/// So if for both `n` in `{na, nb}` the smallest `n . c_i` exceeds the
+/// largest `n . c_j` by more than `eta max(|na|, |nb|)`, then (*) of the
+/// module docs holds at every instant: `d > eta`.
+///
+/// Rounding: the corners are stored coordinates, exact; `fl(n . c)` errs by
+/// at most `gamma_3 (|n| . |c|)` (Higham, Thm 3.1), so the exact extremes
+/// are within `e = gamma_3 max(|n| . |c|)` over the corners used of the
+/// computed ones, and the computed gap (one subtraction) within
+/// `2 e + u |gap|` of the exact gap. `max(|na|, |nb|)` is bounded above as in
+/// step 5. Certify iff
+/// `gap > eta nmax (1 + 4u) + MARGIN_C (2 e + u |gap|) + 2^-1000` for both
+/// normals; `MARGIN_C = 4` covers the rounding of the bound itself (a handful of operations, relative `gamma_6`). Overflow
+/// turns a value infinite or NaN, which fails the strict comparison.
+pub(crate) fn boxes_apart(
+    kind: StencilKind,
+    boxes: &[Aabb; 4],
+    na: DVec3,
+    nb: DVec3,
+    eta: f64,
+) -> bool {
+    let split = match kind {
+        StencilKind::VertexFace => 1,
+        StencilKind::EdgeEdge => 2,
+    };
+    let l1 = na.abs().element_sum().max(nb.abs().element_sum());
+    if l1.is_nan() || l1 > NORMAL_LIMIT || l1 == 0.0 {
+        return false;
+    }
+    let nmax = na.dot(na).max(nb.dot(nb)).sqrt() * (1.0 + 4.0 * U);
+    let thr = eta * nmax * (1.0 + 4.0 * U) + UNDERFLOW_SLACK;
+    let g3 = 3.0 * U * (1.0 + 4.0 * U);
+    let apart = |n: DVec3| {
+        let an = n.abs();
+        let mut e = 0.0f64;
+        let mut lo_first = f64::INFINITY;
+        for b in &boxes[..split] {
+            let c = b.lowest_corner(n);
+            lo_first = lo_first.min(n.dot(c));
+            e = e.max(an.dot(c.abs()));
+        }
+        let mut hi_second = f64::NEG_INFINITY;
+        for b in &boxes[split..] {
+            let c = b.highest_corner(n);
+            hi_second = hi_second.max(n.dot(c));
+            e = e.max(an.dot(c.abs()));
+        }
+        let gap = lo_first - hi_second;
+        gap > thr + MARGIN_C * (2.0 * g3 * e + U * gap.abs())
+    };
+    apart(na) && (nb == na || apart(nb))
+}
+
+/// The segment-by-segment walk of [`certify`].
+fn certify_segments(
+    kind: StencilKind,
+    traj: &[Trajectory<'_>; 4],
+    ta: f64,
+    tb: f64,
+    na: DVec3,
+    nb: DVec3,
+    eta: f64,
+) -> bool {
     let pairs = pairs(kind);
     // Per vertex: index of the segment containing the current sub-segment.
     let mut seg: [usize; 4] = std::array::from_fn(|i| segment_index(&traj[i], ta));
@@ -303,6 +474,12 @@ fn sub_segment(
 /// is then within `2 γ_3 |n|_1 M + u |gap|` of the exact gap of the computed
 /// extremes, and `|n|_2` computed is within `(1 + 2u)` of exact. We demand
 /// `gap > eta |n|_2 (1 + 4u) + MARGIN_C (2 γ_3 |n|_1 M + u |gap|) + 2^-1000`.
+///
+/// With [block bounds](super::bounds) the boxes of the covering breakpoints
+/// are tested first ([`boxes_apart`] with a fixed normal: a box holds its
+/// breakpoints, so it is a looser hull); the breakpoints themselves are
+/// scanned (`walked`) only for ranges of at most [`HULL_SCAN_SEGMENTS`].
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn fixed_plane_hull(
     kind: StencilKind,
     traj: &[Trajectory<'_>; 4],
@@ -311,6 +488,7 @@ pub(crate) fn fixed_plane_hull(
     n: DVec3,
     eta: f64,
     max_coord: f64,
+    walked: &mut bool,
 ) -> bool {
     let split = match kind {
         StencilKind::VertexFace => 1,
@@ -318,23 +496,35 @@ pub(crate) fn fixed_plane_hull(
     };
     // Breakpoints covering [ta, tb]: from the last at or before ta to the
     // first at or after tb.
-    let covering = |tr: &Trajectory<'_>| {
-        let k0 = tr.times.partition_point(|&s| s <= ta).saturating_sub(1);
-        let k1 = tr
-            .times
-            .partition_point(|&s| s < tb)
-            .min(tr.times.len() - 1);
-        k0..k1 + 1
-    };
+    let ranges: [(usize, usize); 4] = std::array::from_fn(|i| {
+        let tr = &traj[i];
+        covering(tr.times, (0, tr.times.len() - 1), ta, tb)
+    });
+    if let [Some(b0), Some(b1), Some(b2), Some(b3)] = traj.map(|tr| tr.bounds) {
+        // The boxes of the covering breakpoints first (a looser bound);
+        // the points themselves only for short ranges.
+        let bounds = [b0, b1, b2, b3];
+        let boxes: [Aabb; 4] =
+            std::array::from_fn(|i| bounds[i].cover(traj[i].points, ranges[i].0, ranges[i].1));
+        if boxes_apart(kind, &boxes, n, n, eta) {
+            return true;
+        }
+        let segments: usize = ranges.iter().map(|&(k0, k1)| k1 - k0).sum();
+        if segments > HULL_SCAN_SEGMENTS {
+            return false;
+        }
+    }
+    *walked = true;
+    let covering = |i: usize| ranges[i].0..ranges[i].1 + 1;
     let mut lo_first = f64::INFINITY;
-    for tr in &traj[..split] {
-        for p in &tr.points[covering(tr)] {
+    for (i, tr) in traj[..split].iter().enumerate() {
+        for p in &tr.points[covering(i)] {
             lo_first = lo_first.min(n.dot(*p));
         }
     }
     let mut hi_second = f64::NEG_INFINITY;
-    for tr in &traj[split..] {
-        for p in &tr.points[covering(tr)] {
+    for (i, tr) in traj.iter().enumerate().skip(split) {
+        for p in &tr.points[covering(i)] {
             hi_second = hi_second.max(n.dot(*p));
         }
     }

@@ -91,6 +91,7 @@
 //! budget.
 
 pub mod benchmark;
+pub mod bounds;
 pub mod certificate;
 pub mod oracle;
 
@@ -135,6 +136,20 @@ pub struct Trajectory<'a> {
     pub times: &'a [f64],
     /// positions at `times`.
     pub points: &'a [DVec3],
+    /// block bounds over `points` ([`bounds`]), when kept: the
+    /// certificates then bound long stretches at once.
+    pub bounds: Option<&'a bounds::TrajectoryBounds>,
+}
+
+impl<'a> Trajectory<'a> {
+    /// A polyline without block bounds.
+    pub fn new(times: &'a [f64], points: &'a [DVec3]) -> Self {
+        Self {
+            times,
+            points,
+            bounds: None,
+        }
+    }
 }
 
 /// Counters of the narrow phase (summed over queries).
@@ -163,6 +178,13 @@ pub struct CcdStats {
     pub denoised_certified: u64,
     /// queries and intervals certified by the fixed-plane hull test.
     pub hull_certified: u64,
+    /// intervals certified (the whole-span fast path counted as one).
+    #[serde(default)]
+    pub certified_intervals: u64,
+    /// of those, the ones certified by block bounds alone, no segment walked
+    /// (see [`bounds`]).
+    #[serde(default)]
+    pub block_certified: u64,
 }
 
 impl CcdStats {
@@ -178,6 +200,8 @@ impl CcdStats {
         self.structural_certified += other.structural_certified;
         self.denoised_certified += other.denoised_certified;
         self.hull_certified += other.hull_certified;
+        self.certified_intervals += other.certified_intervals;
+        self.block_certified += other.block_certified;
     }
 }
 
@@ -218,10 +242,7 @@ pub fn linear_proximity(
 ) -> bool {
     const TIMES: [f64; 2] = [0.0, 1.0];
     let pts: [[DVec3; 2]; 4] = std::array::from_fn(|i| [start[i], end[i]]);
-    let traj: [Trajectory<'_>; 4] = std::array::from_fn(|i| Trajectory {
-        times: &TIMES,
-        points: &pts[i],
-    });
+    let traj: [Trajectory<'_>; 4] = std::array::from_fn(|i| Trajectory::new(&TIMES, &pts[i]));
     proximity(kind, &traj, eta, stats)
 }
 
@@ -261,7 +282,9 @@ pub(crate) fn interpolate(tr: &Trajectory<'_>, k: usize, t: f64) -> DVec3 {
 /// A validated query.
 struct Query<'a> {
     kind: StencilKind,
-    traj: &'a [Trajectory<'a>; 4],
+    /// the trajectories, with block bounds only where they match their
+    /// polyline's length.
+    traj: [Trajectory<'a>; 4],
     eta: f64,
     t0: f64,
     t1: f64,
@@ -308,7 +331,7 @@ struct Normals {
 
 impl<'a> Query<'a> {
     /// Validates the input; `None` means "answer yes" (outside the certified range).
-    fn new(kind: StencilKind, traj: &'a [Trajectory<'a>; 4], eta: f64) -> Option<Self> {
+    fn new(kind: StencilKind, traj: &[Trajectory<'a>; 4], eta: f64) -> Option<Self> {
         if !eta.is_finite() || eta > COORD_LIMIT {
             return None;
         }
@@ -316,12 +339,23 @@ impl<'a> Query<'a> {
         let first = traj[0].times.first().copied()?;
         let last = traj[0].times.last().copied()?;
         let mut m = 0.0f64;
-        for tr in traj {
+        let mut traj = *traj;
+        for tr in &mut traj {
+            tr.bounds = tr.bounds.filter(|b| b.matches(tr.points.len()));
             if tr.times.len() != tr.points.len()
                 || tr.times.first() != Some(&first)
                 || tr.times.last() != Some(&last)
             {
                 return None;
+            }
+            if let Some(b) = tr.bounds {
+                // Checked as the breakpoints were recorded.
+                let (valid, max_abs) = b.summary(tr.times, tr.points);
+                if !valid {
+                    return None;
+                }
+                m = m.max(max_abs);
+                continue;
             }
             if !tr.times.iter().all(|t| t.is_finite()) || tr.times.windows(2).any(|w| w[0] >= w[1])
             {
@@ -436,8 +470,9 @@ impl<'a> Query<'a> {
             // Within the yes threshold: report unless one of the candidate
             // normals certifies this very instant (a sub-ulp near miss, like
             // the sliding cases of the erleben benchmark scenes).
-            let instant =
-                |n: DVec3| certificate::certify(self.kind, self.traj, t, t, n, n, self.eta);
+            let instant = |n: DVec3| {
+                certificate::certify(self.kind, &self.traj, t, t, n, n, self.eta, &mut false)
+            };
             if !(instant(normals.closest)
                 || instant(normals.structural)
                 || (noisy.any() && instant(normals.denoised))
@@ -449,6 +484,46 @@ impl<'a> Query<'a> {
         Some(normals)
     }
 
+    /// The fixed-plane hull certificate over `[ta, tb]` along `n`; notes
+    /// in `stats` whether the block bounds alone certified it.
+    fn hull(&self, ta: f64, tb: f64, n: DVec3, stats: &mut CcdStats) -> bool {
+        let mut walked = false;
+        let yes = certificate::fixed_plane_hull(
+            self.kind,
+            &self.traj,
+            ta,
+            tb,
+            n,
+            self.eta,
+            self.max_coord,
+            &mut walked,
+        );
+        if yes {
+            stats.hull_certified += 1;
+            Self::certified(walked, stats);
+        }
+        yes
+    }
+
+    /// The rotating-plane certificate over `[ta, tb]` from `na` to `nb`;
+    /// notes in `stats` whether the block bounds alone certified it.
+    fn rotating(&self, ta: f64, tb: f64, na: DVec3, nb: DVec3, stats: &mut CcdStats) -> bool {
+        let mut walked = false;
+        let yes =
+            certificate::certify(self.kind, &self.traj, ta, tb, na, nb, self.eta, &mut walked);
+        if yes {
+            Self::certified(walked, stats);
+        }
+        yes
+    }
+
+    fn certified(walked: bool, stats: &mut CcdStats) {
+        stats.certified_intervals += 1;
+        if !walked {
+            stats.block_certified += 1;
+        }
+    }
+
     fn run(&self, stats: &mut CcdStats) -> bool {
         // Fast path: one fixed plane through the whole span, normal = the
         // closest direction at the middle time. Certifies the many stencils
@@ -456,19 +531,7 @@ impl<'a> Query<'a> {
         // the cost of one dot product per breakpoint.
         let mid = 0.5 * (self.t0 + self.t1);
         let c = stencil_closest(self.kind, &self.positions(mid));
-        if c.d.is_finite()
-            && c.d > self.eta
-            && certificate::fixed_plane_hull(
-                self.kind,
-                self.traj,
-                self.t0,
-                self.t1,
-                c.n,
-                self.eta,
-                self.max_coord,
-            )
-        {
-            stats.hull_certified += 1;
+        if c.d.is_finite() && c.d > self.eta && self.hull(self.t0, self.t1, c.n, stats) {
             return false;
         }
         let Some(na) = self.normal_at(self.t0, true, stats) else {
@@ -497,56 +560,26 @@ impl<'a> Query<'a> {
             budget -= 1;
             stats.intervals += 1;
             let (na, nb) = (node.na, node.nb);
+            let (ta, tb) = (node.ta, node.tb);
             // Cheap first: a fixed plane over the breakpoints covering the
             // interval, normal = the closest direction at either end.
-            if [na.closest, nb.closest].iter().any(|&n| {
-                certificate::fixed_plane_hull(
-                    self.kind,
-                    self.traj,
-                    node.ta,
-                    node.tb,
-                    n,
-                    self.eta,
-                    self.max_coord,
-                )
-            }) {
-                stats.hull_certified += 1;
+            if self.hull(ta, tb, na.closest, stats) || self.hull(ta, tb, nb.closest, stats) {
                 continue;
             }
-            if certificate::certify(
-                self.kind, self.traj, node.ta, node.tb, na.closest, nb.closest, self.eta,
-            ) {
+            if self.rotating(ta, tb, na.closest, nb.closest, stats) {
                 continue;
             }
-            if certificate::certify(
-                self.kind,
-                self.traj,
-                node.ta,
-                node.tb,
-                na.structural,
-                nb.structural,
-                self.eta,
-            ) {
+            if self.rotating(ta, tb, na.structural, nb.structural, stats) {
                 stats.structural_certified += 1;
                 continue;
             }
             if (na.plain != na.closest || nb.plain != nb.closest)
-                && certificate::certify(
-                    self.kind, self.traj, node.ta, node.tb, na.plain, nb.plain, self.eta,
-                )
+                && self.rotating(ta, tb, na.plain, nb.plain, stats)
             {
                 continue;
             }
             if (na.denoised != na.closest || nb.denoised != nb.closest)
-                && certificate::certify(
-                    self.kind,
-                    self.traj,
-                    node.ta,
-                    node.tb,
-                    na.denoised,
-                    nb.denoised,
-                    self.eta,
-                )
+                && self.rotating(ta, tb, na.denoised, nb.denoised, stats)
             {
                 stats.denoised_certified += 1;
                 continue;

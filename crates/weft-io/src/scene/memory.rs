@@ -245,7 +245,7 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("one window's trajectory breakpoints (1000000 internal steps) 32.0 GB")
+            e.contains("one window's trajectory breakpoints (1000000 internal steps) 39.0 GB")
                 && e.contains("shorten the window (time.steps_per_window or time.window)"),
             "{e}"
         );

@@ -387,6 +387,7 @@ impl<E: Executor> Engine<E> {
         let mut blown_up = 0u32;
         let mut confirmed = 0u64;
         let mut stages = StageSeconds::default();
+        let ccd_before = self.ccd;
         // The deepest layer a stencil may get (about 30 `pow` calls: once
         // per window, not per rollback).
         let resolved = self.world.schedule.resolved_depth();
@@ -487,6 +488,10 @@ impl<E: Executor> Engine<E> {
                 stats.predicted_layers = predicted.layers;
                 stats.predicted_unreached = unreached;
                 stats.detected_layers = detected_layers;
+                stats.certified_intervals =
+                    self.ccd.certified_intervals - ccd_before.certified_intervals;
+                stats.block_certified_intervals =
+                    self.ccd.block_certified - ccd_before.block_certified;
                 self.world.window_index += 1;
                 self.totals.windows += 1;
                 self.totals.rollbacks += rollbacks as u64;
@@ -611,6 +616,8 @@ impl<E: Executor> Engine<E> {
                 .flat_map(|k| k.v)
                 .map(|i| self.traj.count(i as usize) as u64)
                 .sum(),
+            certified_intervals: 0,
+            block_certified_intervals: 0,
             min_separation: min_sep.is_finite().then_some(min_sep),
             kinetic_energy: e.0,
             potential_energy: e.1 + e.2,

@@ -115,6 +115,9 @@ struct Sample {
     /// Committed passes' candidates and the breakpoints their vertices had.
     candidates: u64,
     queried_breakpoints: u64,
+    /// Intervals certified, and those certified by block bounds alone.
+    certified_intervals: u64,
+    block_certified_intervals: u64,
     /// Narrow-phase queries over all passes (rolled-back ones included).
     narrow_queries: u64,
     active_stencils: u64,
@@ -264,6 +267,10 @@ pub struct BenchReport {
     /// Breakpoints per vertex of a committed pass's narrow-phase query: the
     /// trajectory length the narrow phase's cost follows.
     pub breakpoints_per_queried_vertex: Option<f64>,
+    /// Of the time intervals the certificates (narrow phase and commit)
+    /// certified, the share certified by the trajectories' block bounds
+    /// alone, no segment walked (`None` when none was certified).
+    pub block_certified_share: Option<f64>,
     pub narrow_queries_per_window: f64,
     pub internal_evaluations_per_window: f64,
     pub layer_events_per_window: f64,
@@ -427,6 +434,7 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         detected_layers_per_window: 0.0,
         predicted_unreached_per_window: 0.0,
         breakpoints_per_queried_vertex: None,
+        block_certified_share: None,
         narrow_queries_per_window: 0.0,
         internal_evaluations_per_window: 0.0,
         layer_events_per_window: 0.0,
@@ -740,6 +748,8 @@ fn measure<E: Executor>(
         s.predicted_unreached += w.predicted_unreached;
         s.candidates += w.candidates;
         s.queried_breakpoints += w.queried_breakpoints;
+        s.certified_intervals += w.certified_intervals;
+        s.block_certified_intervals += w.block_certified_intervals;
         s.own.internal += w.stage_seconds.internal;
         // Every pass runs the window's internal ticks (a pass cut short by a
         // blow-up, which is rolled back, would count a little high).
@@ -797,6 +807,8 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
     r.predicted_unreached_per_window = first.predicted_unreached as f64 / windows;
     r.breakpoints_per_queried_vertex = (first.candidates > 0)
         .then(|| first.queried_breakpoints as f64 / (4 * first.candidates) as f64);
+    r.block_certified_share = (first.certified_intervals > 0)
+        .then(|| first.block_certified_intervals as f64 / first.certified_intervals as f64);
     r.narrow_queries_per_window = first.narrow_queries as f64 / windows;
     r.internal_evaluations_per_window = first.internal_evaluations as f64 / windows;
     r.layer_events_per_window = first.layer_events as f64 / windows;
@@ -974,11 +986,14 @@ fn table(r: &BenchReport) -> String {
     let _ = writeln!(
         s,
         "per window  {:.2} rollbacks, {:.0} narrow-phase queries ({} breakpoints per queried \
-         vertex), {:.4e} internal stencil evaluations, {:.4e} penalty-layer evaluations",
+         vertex; {} of certified intervals by block bounds alone), {:.4e} internal stencil \
+         evaluations, {:.4e} penalty-layer evaluations",
         r.rollbacks_per_window,
         r.narrow_queries_per_window,
         r.breakpoints_per_queried_vertex
             .map_or("—".into(), |b| format!("{b:.1}")),
+        r.block_certified_share
+            .map_or("—".into(), |b| format!("{:.0} %", 100.0 * b)),
         r.internal_evaluations_per_window,
         r.layer_events_per_window
     );
