@@ -3,6 +3,7 @@
 //! and real contact work in the stats; the start geometry at the published
 //! sizes; the pins at the rope ends; and the errors of bad `ribbon` sections.
 
+use glam::DVec3;
 use std::path::{Path, PathBuf};
 
 use weft_cli::commands::info::scene_info;
@@ -24,8 +25,9 @@ fn load(name: &str, overrides: &[&str]) -> Scene {
 }
 
 /// Runs `name` at `size` vertices; checks every frame for intersecting
-/// triangles and the stats for contact work; returns the stats.
-fn run_small(name: &str, size: usize) -> Vec<WindowStats> {
+/// triangles and the stats for contact work; returns the stats, the first
+/// and last frames' positions and a digest (XXH3-128) of every frame file.
+fn run_small(name: &str, size: usize) -> (Vec<WindowStats>, [Vec<DVec3>; 2], u128) {
     let scene = load(name, &[&format!("size={size}")]);
     let out = tempfile::tempdir().unwrap();
     let started = std::time::Instant::now();
@@ -44,9 +46,18 @@ fn run_small(name: &str, size: usize) -> Vec<WindowStats> {
         "{name}: {} frames, expected at least {expected_frames}",
         frames.len()
     );
-    for f in &frames {
+    let mut ends: [Vec<DVec3>; 2] = Default::default();
+    let mut digest = xxhash_rust::xxh3::Xxh3::new();
+    for (k, f) in frames.iter().enumerate() {
+        digest.update(&std::fs::read(f).unwrap());
         let m = weft_io::read_mesh(f).unwrap().mesh;
         assert!(m.num_vertices() > 0);
+        if k == 0 {
+            ends[0] = m.positions.clone();
+        }
+        if k + 1 == frames.len() {
+            ends[1] = m.positions.clone();
+        }
         let hits = mesh_self_intersections(&m.positions, &m.triangles);
         assert!(
             hits.is_empty(),
@@ -78,26 +89,57 @@ fn run_small(name: &str, size: usize) -> Vec<WindowStats> {
         "{name}: contact in only {:.0} % of windows",
         100.0 * share
     );
-    stats
+    println!("{name}: frames digest {:032x}", digest.digest128());
+    (stats, ends, digest.digest128())
 }
+
+/// The extent across the pull (y) of the knot's core: the vertices within
+/// 6 cm of the middle (x = 0), where the bights interlock.
+fn core_width(x: &[DVec3]) -> f64 {
+    let core = x.iter().filter(|p| p.x.abs() < 0.06);
+    let (lo, hi) = core.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+        (lo.min(p.y), hi.max(p.y))
+    });
+    hi - lo
+}
+
+/// The frames of `reef-knot` at `size=400` (every PLY file, in order), as
+/// the build before the block bounds wrote them (XXH3-128 of its CLI run).
+const FRAMES_DIGEST_400: &str = "3a22c16e929e1ce3f169a1f832787c04";
 
 #[test]
 fn reef_knot_tightens_at_a_small_size() {
-    let stats = run_small("reef-knot.toml", 400);
-    // The pull ends at 0.4 s; the knot is tight after it: contact in most
-    // windows of the hold.
-    let hold: Vec<_> = stats.iter().filter(|s| s.time > 0.4).collect();
+    let (stats, [first, last], digest) = run_small("reef-knot.toml", 400);
+    // Every frame byte for byte as the build before the trajectories' block
+    // bounds wrote them (checked with `diff -r` on the CLI's frames): the
+    // narrow phase may change, the trajectory must not (acm-spec §4).
+    assert_eq!(
+        format!("{digest:032x}"),
+        FRAMES_DIGEST_400,
+        "the frames changed"
+    );
+    // The pull ends at 0.9 s; the knot is tight after it: its core is less
+    // than a third as wide as tied (measured: 12.7 cm tied, 1.7 cm at the
+    // end; 9.4 cm at 0.6 s with the old 0.4 s pull, still loose), and in
+    // contact in every window of the hold.
+    let (tied, end) = (core_width(&first), core_width(&last));
+    println!("reef knot core width: {tied:.4} m tied, {end:.4} m at the end");
+    assert!(end < tied / 3.0, "still loose: {end} m of {tied} m");
+    let hold: Vec<_> = stats.iter().filter(|s| s.time > 0.9).collect();
     let touching = hold.iter().filter(|s| s.active_stencils > 0).count();
-    assert!(
-        touching * 2 > hold.len(),
+    assert_eq!(
+        touching,
+        hold.len(),
         "{touching} of {} hold windows",
         hold.len()
     );
+    let contacts = stats.last().map_or(0, |s| s.active_stencils);
+    assert!(contacts >= 50, "{contacts} active stencils at the end");
 }
 
 #[test]
 fn bowline_sets_at_a_small_size() {
-    let stats = run_small("bowline.toml", 500);
+    let (stats, ..) = run_small("bowline.toml", 500);
     let hold: Vec<_> = stats.iter().filter(|s| s.time > 0.75).collect();
     let touching = hold.iter().filter(|s| s.active_stencils > 0).count();
     assert!(

@@ -113,10 +113,6 @@ pub fn pairs(kind: StencilKind) -> &'static [(usize, usize)] {
 /// walked segment by segment instead of bounded by blocks first.
 const LEAF_SEGMENTS: usize = 8;
 
-/// Segments (summed over the four vertices) up to which the fixed-plane
-/// hull test scans the breakpoints when their block boxes fail.
-const HULL_SCAN_SEGMENTS: usize = 0;
-
 /// `true` when the rotating plane from `na` (at `ta`) to `nb` (at `tb`)
 /// certifies `d > eta` at every instant of `[ta, tb]` for the exact
 /// trajectories. Preconditions (checked by [`super::proximity`]): finite
@@ -476,9 +472,11 @@ fn sub_segment(
 /// `gap > eta |n|_2 (1 + 4u) + MARGIN_C (2 γ_3 |n|_1 M + u |gap|) + 2^-1000`.
 ///
 /// With [block bounds](super::bounds) the boxes of the covering breakpoints
-/// are tested first ([`boxes_apart`] with a fixed normal: a box holds its
-/// breakpoints, so it is a looser hull); the breakpoints themselves are
-/// scanned (`walked`) only for ranges of at most [`HULL_SCAN_SEGMENTS`].
+/// are tested instead ([`boxes_apart`] with a fixed normal: a box holds its
+/// breakpoints, so it is a looser hull, but it costs `O(log)` instead of a
+/// scan; on `crumple`'s queries, also scanning the breakpoints of short
+/// ranges where the boxes fail changed neither the answers nor the time).
+/// `walked` is set when the breakpoints were scanned.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn fixed_plane_hull(
     kind: StencilKind,
@@ -501,18 +499,10 @@ pub(crate) fn fixed_plane_hull(
         covering(tr.times, (0, tr.times.len() - 1), ta, tb)
     });
     if let [Some(b0), Some(b1), Some(b2), Some(b3)] = traj.map(|tr| tr.bounds) {
-        // The boxes of the covering breakpoints first (a looser bound);
-        // the points themselves only for short ranges.
         let bounds = [b0, b1, b2, b3];
         let boxes: [Aabb; 4] =
             std::array::from_fn(|i| bounds[i].cover(traj[i].points, ranges[i].0, ranges[i].1));
-        if boxes_apart(kind, &boxes, n, n, eta) {
-            return true;
-        }
-        let segments: usize = ranges.iter().map(|&(k0, k1)| k1 - k0).sum();
-        if segments > HULL_SCAN_SEGMENTS {
-            return false;
-        }
+        return boxes_apart(kind, &boxes, n, n, eta);
     }
     *walked = true;
     let covering = |i: usize| ranges[i].0..ranges[i].1 + 1;

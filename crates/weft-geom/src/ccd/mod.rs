@@ -50,6 +50,20 @@
 //! only `O(1)` intervals per bisection level stay uncertified. A fixed normal
 //! is the special case `na == nb`.
 //!
+//! **Long trajectories.** A vertex in deep contact has hundreds to
+//! thousands of breakpoints per window, and a certificate walks every
+//! sub-segment of its interval. With [`bounds::TrajectoryBounds`] on all
+//! four trajectories ([`Trajectory::bounds`]), both certificates first test
+//! the exact boxes of the breakpoints covering the interval (a rotating
+//! plane against boxes: [`certificate`]'s `boxes_apart`); where that fails
+//! the rotating-plane certificate cuts the interval at a middle breakpoint,
+//! down to pieces of a few segments that it walks. The answers stay
+//! rigorous (a box holds its segments exactly; the rounding bound is next to
+//! `boxes_apart`), the breakpoints are all kept, and validation reads the
+//! bounds' block-by-block checks instead of every point. On `crumple`'s
+//! queries (about 800 breakpoints per vertex) this cut the narrow phase from
+//! about 240 to 13 µs per query, with the same answers.
+//!
 //! **Root probe.** When an uncertified interval has a sign change of the
 //! orientation determinant (VF: `(b-a)x(c-a).(p-a)`; EE:
 //! `(p1-p0)x(q1-q0).(p0-q0)`) between its ends, the coplanarity root inside is
