@@ -20,6 +20,17 @@ fn scene_path(name: &str) -> PathBuf {
         .join(name)
 }
 
+/// The PLY frames of the run folder `dir`, in order.
+fn ply_frames(dir: &Path) -> Vec<PathBuf> {
+    let mut frames: Vec<PathBuf> = std::fs::read_dir(dir.join("frames"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "ply"))
+        .collect();
+    frames.sort();
+    frames
+}
+
 /// What a small run of a scene showed.
 struct Outcome {
     scene: Scene,
@@ -43,12 +54,7 @@ fn run_and_check(name: &str, overrides: &[&str]) -> Outcome {
     let out = tempfile::tempdir().unwrap();
     let summary = simulate(&scene, out.path(), true).unwrap_or_else(|e| panic!("{name}: {e:#}"));
 
-    let mut frames: Vec<PathBuf> = std::fs::read_dir(out.path().join("frames"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|x| x == "ply"))
-        .collect();
-    frames.sort();
+    let frames = ply_frames(out.path());
     assert!(frames.len() >= 3, "{name}: {} frames", frames.len());
     let mut last_frame = Vec::new();
     for f in &frames {
@@ -278,12 +284,7 @@ fn crumple_frames_are_those_of_the_build_before_block_bounds() {
     let scene = load_scene(&scene_path("crumple.toml"), &o).unwrap();
     let out = tempfile::tempdir().unwrap();
     simulate(&scene, out.path(), true).unwrap();
-    let mut frames: Vec<PathBuf> = std::fs::read_dir(out.path().join("frames"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|x| x == "ply"))
-        .collect();
-    frames.sort();
+    let frames = ply_frames(out.path());
     assert_eq!(frames.len(), 10);
     let mut digest = xxhash_rust::xxh3::Xxh3::new();
     for f in &frames {
