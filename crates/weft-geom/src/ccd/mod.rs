@@ -151,7 +151,10 @@ pub struct Trajectory<'a> {
     /// positions at `times`.
     pub points: &'a [DVec3],
     /// block bounds over `points` ([`bounds`]), when kept: the
-    /// certificates then bound long stretches at once.
+    /// certificates then bound long stretches at once. They must be the
+    /// bounds of exactly these `times` and `points` (built from them, or
+    /// updated as they were recorded): a certificate trusts their boxes.
+    /// Bounds of another length are ignored.
     pub bounds: Option<&'a bounds::TrajectoryBounds>,
 }
 
