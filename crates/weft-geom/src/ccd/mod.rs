@@ -545,7 +545,8 @@ impl<'a> Query<'a> {
         // Fast path: one fixed plane through the whole span, normal = the
         // closest direction at the middle time. Certifies the many stencils
         // whose gap stays well above `eta` (resting contact, neighbours) at
-        // the cost of one dot product per breakpoint.
+        // the cost of one dot product per breakpoint (per block box with
+        // block bounds).
         let mid = 0.5 * (self.t0 + self.t1);
         let c = stencil_closest(self.kind, &self.positions(mid));
         if c.d.is_finite() && c.d > self.eta && self.hull(self.t0, self.t1, c.n, stats) {
