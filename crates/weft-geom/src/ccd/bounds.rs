@@ -184,8 +184,11 @@ impl TrajectoryBounds {
     /// bounds were built from, grown at its end) closes since the last
     /// call. Call it after every new breakpoint, or once after many.
     #[inline]
+    /// (A polyline with fewer times than points is closed only as far as
+    /// its times go; the predicate refuses such input anyway.)
     pub fn update(&mut self, times: &[f64], points: &[DVec3]) {
-        while self.closed_end() + FANOUT < points.len() {
+        let len = times.len().min(points.len());
+        while self.closed_end() + FANOUT < len {
             self.close(times, points);
         }
     }
@@ -343,10 +346,12 @@ mod tests {
     }
 
     /// Every range's cover equals the brute-force box, for lengths around
-    /// the block sizes (a level starts at 16, 256, 4096 segments).
+    /// the block sizes (a level starts at 8, 64, 512, 4096 segments).
     #[test]
     fn cover_is_the_exact_box_of_every_range() {
-        for n in [1, 2, 16, 17, 18, 255, 256, 257, 258, 600, 4098] {
+        for n in [
+            1, 2, 8, 9, 10, 63, 64, 65, 66, 511, 512, 513, 514, 600, 4097, 4098,
+        ] {
             let pts = wiggle(n);
             let b = TrajectoryBounds::from_points(&times(n), &pts);
             assert!(b.matches(n));
