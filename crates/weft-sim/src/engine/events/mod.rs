@@ -93,6 +93,8 @@ pub(super) struct Workspace {
     /// Each island's cost: its stencils at first, then the seconds its last
     /// segment took; islands are handed out largest first.
     island_cost: Vec<f64>,
+    /// The end of the pass being run.
+    pass_end: Tick,
 }
 
 impl Workspace {
@@ -274,6 +276,7 @@ impl<E: Executor> Engine<E> {
         // The units of work: the islands, the small ones packed.
         let packs = islands.packed(self.island_pack);
         let ws = &mut self.ws;
+        ws.pass_end = t1;
         ws.islands = (0..packs.len())
             .map(|k| Mutex::new(Island::new(&packs, k, active, w)))
             .collect();
@@ -324,6 +327,7 @@ impl<E: Executor> Engine<E> {
             world: &self.world,
             layer_consts,
             exhaustive: self.every_layer_event,
+            pass_end: self.ws.pass_end,
         };
         let (islands, exec) = (&self.ws.islands, &self.exec);
         let binned = self.exec.map_on_ranks(bins.len(), &owner, &|b| {
