@@ -66,9 +66,12 @@ pub struct Dormancy {
     reach: Vec<u32>,
     /// Per stencil below its depth: the tick its reach is restored.
     until: Vec<Tick>,
-    /// Bumped on every doze or sleep, so stale heap entries are ignored.
-    generation: Vec<u32>,
-    due: BinaryHeap<Reverse<(Tick, u32, u32)>>,
+    /// Wake ticks, `(until - base) << 32 | stencil` (one word: the heap
+    /// costs a fifth of a contact-heavy pass's penalty work); an entry whose
+    /// stencil is awake, or dozes until another tick, is stale and ignored.
+    due: BinaryHeap<Reverse<u64>>,
+    /// The tick wake ticks count from (the pass's start).
+    base: Tick,
     /// `by_reach[r]`: the stencils of reach `r ≥ 1`, unordered (a batch
     /// whose outermost firing layer is `first` reads the lists `first..`
     /// only, and the schedule asks for the largest reach at every tick);
@@ -89,8 +92,8 @@ impl Dormancy {
     /// `stencils` (four each; `NONE` entries are vertices whose velocity never
     /// changes here, and are left out of the index) over `n` vertices; every
     /// speed cap 0 (show each vertex's velocity to [`Dormancy::observe`]
-    /// before the first certificate).
-    pub fn reset(&mut self, stencils: &[[u32; 4]], depths: &[u32], n: usize) {
+    /// before the first certificate); no wake tick before `base`.
+    pub fn reset(&mut self, stencils: &[[u32; 4]], depths: &[u32], n: usize, base: Tick) {
         let m = stencils.len();
         self.depth.clear();
         self.depth.extend_from_slice(depths);
@@ -98,9 +101,8 @@ impl Dormancy {
         self.reach.extend_from_slice(depths);
         self.until.clear();
         self.until.resize(m, 0);
-        self.generation.clear();
-        self.generation.resize(m, 0);
         self.due.clear();
+        self.base = base;
         let deepest = depths.iter().copied().max().unwrap_or(0) as usize;
         self.by_reach.iter_mut().for_each(Vec::clear);
         self.by_reach.resize(deepest + 1, Vec::new());
@@ -163,17 +165,20 @@ impl Dormancy {
     /// The earliest tick at which a dozing or asleep stencil is due to wake
     /// (stale entries included: never later than the truth).
     pub fn next_due(&self) -> Option<Tick> {
-        self.due.peek().map(|r| r.0 .0)
+        self.due.peek().map(|r| self.base + (r.0 >> 32))
     }
 
     /// Wakes the stencils whose wake tick is at or before `t`.
     pub fn wake_due(&mut self, t: Tick) {
-        while let Some(&Reverse((at, a, generation))) = self.due.peek() {
+        while let Some(&Reverse(key)) = self.due.peek() {
+            let at = self.base + (key >> 32);
             if at > t {
                 break;
             }
             self.due.pop();
-            if self.generation[a as usize] == generation {
+            let a = key as u32;
+            let i = a as usize;
+            if self.reach[i] < self.depth[i] && self.until[i] == at {
                 self.wake(a);
             }
         }
@@ -234,9 +239,7 @@ impl Dormancy {
     fn wake(&mut self, a: u32) {
         let (reach, depth) = (self.reach[a as usize], self.depth[a as usize]);
         if reach < depth {
-            self.set_reach(a, depth);
-            // Its heap entry, if any, is stale now.
-            self.generation[a as usize] = self.generation[a as usize].wrapping_add(1);
+            self.set_reach(a, depth); // (its heap entry, if any, is stale now)
         }
     }
 
@@ -268,15 +271,21 @@ impl Dormancy {
     pub fn doze(&mut self, a: u32, reach: u32, until: Tick) {
         let i = a as usize;
         debug_assert!(reach < self.depth[i]);
+        debug_assert!(until > self.base);
+        // A wake tick more than 2^32 ticks after the base wakes it there
+        // instead (earlier is always safe).
+        let until = if until == Tick::MAX {
+            until
+        } else {
+            until.min(self.base + u32::MAX as Tick)
+        };
         if reach == self.reach[i] && until <= self.until[i] {
             return; // what it certifies holds already, at least as long
         }
         self.set_reach(a, reach);
         self.until[i] = until;
-        self.generation[a as usize] = self.generation[a as usize].wrapping_add(1);
         if until != Tick::MAX {
-            self.due
-                .push(Reverse((until, a, self.generation[a as usize])));
+            self.due.push(Reverse((until - self.base) << 32 | a as u64));
         }
     }
 }
@@ -290,7 +299,7 @@ mod tests {
         // Vertex 1 never changes velocity (left out of the index).
         let stencils = [[0, NONE, 2, 3], [4, 1, 2, 3], [4, 5, 6, 7]];
         let mut d = Dormancy::default();
-        d.reset(&stencils, &[1, 1, 3], 8);
+        d.reset(&stencils, &[1, 1, 3], 8, 0);
         let sorted = |d: &Dormancy| {
             let mut v: Vec<u32> = d.awake().collect();
             v.sort_unstable();
@@ -328,7 +337,7 @@ mod tests {
         };
         let stencils = [[0, 1, 2, 3], [4, 5, 6, 7]];
         let mut d = Dormancy::default();
-        d.reset(&stencils, &[2, 2], 8);
+        d.reset(&stencils, &[2, 2], 8, 0);
         for i in 0..8 {
             d.observe(i, DVec3::X);
         }
@@ -366,7 +375,7 @@ mod tests {
     fn a_dozing_stencil_stays_listed_with_a_lower_reach_until_it_wakes() {
         let stencils = [[0, 1, 2, 3], [4, 5, 6, 7]];
         let mut d = Dormancy::default();
-        d.reset(&stencils, &[5, 5], 8);
+        d.reset(&stencils, &[5, 5], 8, 0);
         d.doze(0, 2, 30);
         assert_eq!(
             d.awake().count(),

@@ -230,12 +230,13 @@ pub(super) struct Island {
 
 impl Island {
     /// Island `k` of `islands` over the pass's `active` stencils (key,
-    /// depth), all awake.
+    /// depth), all awake, for a pass from tick `start`.
     pub(super) fn new(
         islands: &Islands,
         k: usize,
         active: &[(StencilKey, u32)],
         w: &World,
+        start: Tick,
     ) -> Self {
         let vertices = islands.vertices_of(k).to_vec();
         let local = |i: u32| vertices.binary_search(&i).map_or(NONE, |j| j as u32);
@@ -266,7 +267,7 @@ impl Island {
         let mut dormancy = Dormancy::default();
         let watched: Vec<[u32; 4]> = members.iter().map(|m| m.watch).collect();
         let depths: Vec<u32> = members.iter().map(|m| m.depth).collect();
-        dormancy.reset(&watched, &depths, n + kinematic.len());
+        dormancy.reset(&watched, &depths, n + kinematic.len(), start);
         for (j, &i) in vertices.iter().chain(&kinematic).enumerate() {
             dormancy.observe(j, w.v[i as usize]);
         }

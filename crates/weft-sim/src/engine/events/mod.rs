@@ -278,7 +278,7 @@ impl<E: Executor> Engine<E> {
         let ws = &mut self.ws;
         ws.pass_end = t1;
         ws.islands = (0..packs.len())
-            .map(|k| Mutex::new(Island::new(&packs, k, active, w)))
+            .map(|k| Mutex::new(Island::new(&packs, k, active, w, t0)))
             .collect();
         ws.island_cost = (0..packs.len())
             .map(|k| packs.stencils_of(k).len() as f64)
