@@ -8,9 +8,10 @@
 //! inactive layer, so its trajectory is that of "every layer always active",
 //! whichever layers were active (policy independence, `acm-spec.md` §4; held
 //! by `weft-par/tests/policy.rs`). A wrong guess costs a layer that sleeps
-//! until it retires (not nothing: every internal tick wakes every active
-//! stencil); a missed one costs what it costs without prediction, a
-//! rollback. Off by default (`contact.predict`): `docs/performance.md`,
+//! until it retires (little since sleep certificates outlive internal
+//! ticks, `crate::dormancy`, but not nothing: it joins islands, and is read
+//! again whenever one of its vertices outruns its speed cap); a missed one
+//! costs what it costs without prediction, a rollback. Off by default (`contact.predict`): `docs/performance.md`,
 //! "Fewer passes", has where it pays and where it does not.
 //!
 //! **Inactive stencils** (new contacts). From the state at the window start,
