@@ -134,7 +134,7 @@ impl<E: Executor> Engine<E> {
         let mut tau_runs = split_chunks(&mut world.tau, bounds).into_iter();
         let mut apply_runs: Vec<Run<'_>> = self
             .traj
-            .runs(bounds)
+            .runs(bounds, Some(t))
             .into_iter()
             .enumerate()
             .map(|(k, traj)| Run {
@@ -150,6 +150,7 @@ impl<E: Executor> Engine<E> {
         self.exec
             .for_each_chunk(&mut apply_runs, &one_each, &|_, chunk| {
                 for r in chunk {
+                    r.traj.prepare();
                     let end = r.x.len().min(limit.saturating_sub(r.start));
                     for j in 0..end {
                         let i = r.start + j;
@@ -157,7 +158,7 @@ impl<E: Executor> Engine<E> {
                             r.x[j] = xt[i];
                             r.tau[j] = t;
                             r.v[j] = v_new[i];
-                            r.added += usize::from(r.traj.record(j, t, xt[i]));
+                            r.added += usize::from(r.traj.stage(j, xt[i]));
                         }
                     }
                 }

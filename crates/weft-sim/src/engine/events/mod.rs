@@ -51,7 +51,7 @@ const BINS_PER_RANK: usize = 8;
 pub(super) const PACK_STENCILS: usize = 64;
 
 /// Vertices per task of the per-vertex stages of an internal tick.
-const VERTEX_RUN: usize = 2048;
+const VERTEX_RUN: usize = 512;
 
 /// Counters of one pass over a window.
 #[derive(Debug, Default)]
@@ -229,8 +229,16 @@ impl<E: Executor> Engine<E> {
             }
             s = b + 1;
         }
-        // Drift everything to the end of the pass (the window end unless the
-        // pass was cut short).
+        // Store the staged internal ticks' breakpoints, then drift everything
+        // to the end of the pass (the window end unless the pass was cut
+        // short).
+        let runs = self.traj.runs(&self.ws.vertex_runs, None);
+        let mut runs = runs;
+        let one_each: Vec<usize> = (0..=runs.len()).collect();
+        self.exec.for_each_chunk(&mut runs, &one_each, &|_, chunk| {
+            chunk.iter_mut().for_each(|r| r.prepare())
+        });
+        drop(runs);
         let w = &mut self.world;
         for i in 0..w.x.len() {
             let p = Self::pos_at(w, i, end);
