@@ -177,9 +177,14 @@ pub struct TrajectoryRun<'a> {
     staged_points: Vec<&'a mut [DVec3]>,
     staged_marked: Vec<&'a mut [bool]>,
     stored: &'a mut [u8],
-    /// The column of this tick (`None`: the run only stores), and its time.
+    /// The column of this tick (`None`: the run only stores or records),
+    /// and its time.
     column: Option<usize>,
     rel: f64,
+    /// The times of the staged columns a [`TrajectoryRun::record`] stores
+    /// first, and the window start.
+    staged_times: &'a [f64],
+    start: Tick,
 }
 
 impl TrajectoryRun<'_> {
@@ -205,6 +210,30 @@ impl TrajectoryRun<'_> {
         if let Some(k) = self.column {
             self.staged_marked[k].fill(false);
         }
+    }
+
+    /// Records that the run's vertex `j` is at `p` at tick `t`, out of turn
+    /// (as [`Trajectories::record`]: its staged breakpoints are stored
+    /// first); returns whether a breakpoint was added.
+    #[inline]
+    pub fn record(&mut self, j: usize, t: Tick, p: DVec3) -> bool {
+        let now = self.staged_times.len();
+        let from = std::mem::replace(&mut self.stored[j], now as u8) as usize;
+        let held = self.holder[j] == self.me;
+        if held && from < now {
+            let store = (&mut self.times[j], &mut self.points[j], &mut self.bounds[j]);
+            store_staged(
+                store,
+                self.staged_times,
+                &self.staged_points,
+                &self.staged_marked,
+                j,
+                from,
+            );
+        }
+        let rel = (t - self.start) as f64;
+        let store = held.then(|| (&mut self.times[j], &mut self.points[j], &mut self.bounds[j]));
+        push_breakpoint(&mut self.last[j], &mut self.count[j], store, rel, p)
     }
 
     /// Stages a breakpoint of the run's vertex `j` at `p` at this tick;
@@ -335,11 +364,34 @@ impl Trajectories {
     /// [`TrajectoryRun::prepare`] first; report what they added with
     /// [`Trajectories::add_recorded`].
     pub fn runs(&mut self, bounds: &[usize], t: Option<Tick>) -> Vec<TrajectoryRun<'_>> {
+        let flush = match t {
+            Some(_) => self.staged.times.len() == STAGED_TICKS,
+            None => !self.staged.times.is_empty(),
+        };
+        self.runs_with(bounds, t, flush)
+    }
+
+    /// The storage of consecutive runs of vertices (as for
+    /// [`Trajectories::runs`]), to record breakpoints out of turn on several
+    /// threads ([`TrajectoryRun::record`]; no [`TrajectoryRun::prepare`]).
+    pub fn record_runs(&mut self, bounds: &[usize]) -> Vec<TrajectoryRun<'_>> {
+        self.runs_with(bounds, None, false)
+    }
+
+    /// Whether `n` more breakpoints fit in the budget.
+    pub fn fits(&self, n: usize) -> bool {
+        (self.total + n).saturating_mul(BYTES_PER_BREAKPOINT) <= self.budget
+    }
+
+    fn runs_with(
+        &mut self,
+        bounds: &[usize],
+        t: Option<Tick>,
+        flush: bool,
+    ) -> Vec<TrajectoryRun<'_>> {
         use crate::executor::split_chunks;
-        let me = self.me;
+        let (me, start) = (self.me, self.start);
         let staged = &mut self.staged;
-        // Full columns (or a store only): the runs store them first.
-        let flush = staged.times.len() == STAGED_TICKS || (t.is_none() && !staged.times.is_empty());
         let flush_times: &[f64] = if flush {
             let times = std::mem::take(&mut staged.times);
             self.flushed_times = times;
@@ -352,6 +404,7 @@ impl Trajectories {
             staged.times.len() - 1
         });
         let rel = t.map_or(0.0, |t| (t - self.start) as f64);
+        let staged_times: &[f64] = &staged.times;
         let mut columns: Vec<std::vec::IntoIter<(usize, &mut [DVec3])>> =
             (staged.points.iter_mut())
                 .map(|c| split_chunks(c, bounds).into_iter())
@@ -393,6 +446,8 @@ impl Trajectories {
                         stored,
                         column,
                         rel,
+                        staged_times,
+                        start,
                     }
                 },
             )

@@ -95,6 +95,9 @@ pub(super) struct Workspace {
     island_cost: Vec<f64>,
     /// The end of the pass being run.
     pass_end: Tick,
+    /// The islands' breakpoints of a segment by vertex run: (vertex in the
+    /// run, tick, position).
+    breakpoints_by_run: Vec<Vec<(u32, Tick, DVec3)>>,
 }
 
 impl Workspace {
@@ -367,15 +370,56 @@ impl<E: Executor> Engine<E> {
     ) -> Result<Option<SimError>, SimError> {
         let w = &mut self.world;
         let mut blew_up: Option<(Tick, u32)> = None;
+        // The breakpoints go to their vertices' runs, each run's in island
+        // order (a vertex's are all one island's, in time order), and the
+        // runs record them on the executor. Near the budget they are
+        // recorded one by one instead, so the error names the breakpoint
+        // that broke it.
+        let count: usize = outputs.iter().map(|o| o.breakpoints.len()).sum();
+        let parallel = count > 0 && self.traj.fits(count);
+        if parallel {
+            let runs = &self.ws.vertex_runs;
+            let by_run = &mut self.ws.breakpoints_by_run;
+            by_run.resize_with(runs.len().saturating_sub(1), Vec::new);
+            by_run.iter_mut().for_each(Vec::clear);
+            for out in outputs {
+                for &(i, t, x) in &out.breakpoints {
+                    by_run[i as usize / VERTEX_RUN].push((
+                        i - (i / VERTEX_RUN as u32) * VERTEX_RUN as u32,
+                        t,
+                        x,
+                    ));
+                }
+            }
+            let mut record = self.traj.record_runs(runs);
+            let one_each: Vec<usize> = (0..=record.len()).collect();
+            let by_run = &self.ws.breakpoints_by_run;
+            let added = std::sync::atomic::AtomicUsize::new(0);
+            self.exec
+                .for_each_chunk(&mut record, &one_each, &|k, chunk| {
+                    for r in chunk {
+                        let n = (by_run[k].iter())
+                            .filter(|&&(j, t, x)| r.record(j as usize, t, x))
+                            .count();
+                        added.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
+                    }
+                });
+            drop(record);
+            self.traj
+                .add_recorded(added.into_inner())
+                .map_err(|e| budget_error(w, t0, e))?;
+        }
         for out in outputs {
             for &(i, x, v, tau) in &out.moved {
                 let i = i as usize;
                 (w.x[i], w.v[i], w.tau[i]) = (x, v, tau);
             }
-            for &(i, t, x) in &out.breakpoints {
-                self.traj
-                    .record(i as usize, t, x)
-                    .map_err(|e| budget_error(w, t0, e))?;
+            if !parallel {
+                for &(i, t, x) in &out.breakpoints {
+                    self.traj
+                        .record(i as usize, t, x)
+                        .map_err(|e| budget_error(w, t0, e))?;
+                }
             }
             counts.layer_evaluations += out.evaluations;
             counts.layer_kicks += out.kicks;
