@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use weft_sim::trajectory::BYTES_PER_BREAKPOINT;
+use weft_sim::trajectory::{BYTES_PER_BREAKPOINT, STAGED_BYTES_PER_VERTEX};
 
 use super::{invalid, SceneError};
 
@@ -31,8 +31,9 @@ struct Estimate {
 impl Estimate {
     fn new(vertices: u64, stretch: u64, hinges: u64, steps_per_window: u64) -> Self {
         let (n, stretch, hinges) = (vertices as u128, stretch as u128, hinges as u128);
-        // x, v and tau (3 f64 each), mass, flags and clock per vertex.
-        let state = n * (3 * 24 + 8 + 16);
+        // x, v and tau (3 f64 each), mass, flags and clock per vertex, and
+        // the internal ticks' staged breakpoints.
+        let state = n * (3 * 24 + 8 + 16 + STAGED_BYTES_PER_VERTEX as u128);
         // An output slot (a 3-vector) per element corner: 3 per stretch
         // element, 4 per hinge; 48 bytes of rest data per element.
         let forces = (3 * stretch + 4 * hinges) * 24 + (stretch + hinges) * 48;
