@@ -51,8 +51,7 @@ pub const STAGED_TICKS: usize = 16;
 
 /// Bytes per vertex of the staged columns: a position and a mark per staged
 /// tick, and a count.
-pub const STAGED_BYTES_PER_VERTEX: usize =
-    STAGED_TICKS * (std::mem::size_of::<DVec3>() + 1) + 1;
+pub const STAGED_BYTES_PER_VERTEX: usize = STAGED_TICKS * (std::mem::size_of::<DVec3>() + 1) + 1;
 
 /// Staged internal-tick breakpoints (see the module docs).
 #[derive(Clone, Debug, Default)]
