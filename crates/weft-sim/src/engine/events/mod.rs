@@ -235,8 +235,7 @@ impl<E: Executor> Engine<E> {
         // Store the staged internal ticks' breakpoints, then drift everything
         // to the end of the pass (the window end unless the pass was cut
         // short).
-        let runs = self.traj.runs(&self.ws.vertex_runs, None);
-        let mut runs = runs;
+        let mut runs = self.traj.runs(&self.ws.vertex_runs, None);
         let one_each: Vec<usize> = (0..=runs.len()).collect();
         self.exec.for_each_chunk(&mut runs, &one_each, &|_, chunk| {
             chunk.iter_mut().for_each(|r| r.prepare())
@@ -384,11 +383,8 @@ impl<E: Executor> Engine<E> {
             by_run.iter_mut().for_each(Vec::clear);
             for out in outputs {
                 for &(i, t, x) in &out.breakpoints {
-                    by_run[i as usize / VERTEX_RUN].push((
-                        i - (i / VERTEX_RUN as u32) * VERTEX_RUN as u32,
-                        t,
-                        x,
-                    ));
+                    let (run, j) = (i as usize / VERTEX_RUN, i as usize % VERTEX_RUN);
+                    by_run[run].push((j as u32, t, x));
                 }
             }
             let mut record = self.traj.record_runs(runs);
