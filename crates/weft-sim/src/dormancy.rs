@@ -228,14 +228,6 @@ impl Dormancy {
         }
     }
 
-    /// Wakes every stencil (every velocity changed).
-    pub fn wake_all(&mut self) {
-        for a in 0..self.reach.len() as u32 {
-            self.wake(a);
-        }
-        self.due.clear();
-    }
-
     fn wake(&mut self, a: u32) {
         let (reach, depth) = (self.reach[a as usize], self.depth[a as usize]);
         if reach < depth {
@@ -295,7 +287,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn stencils_wake_on_time_on_a_velocity_change_or_all_at_once() {
+    fn stencils_wake_on_time_or_on_a_velocity_change() {
         // Vertex 1 never changes velocity (left out of the index).
         let stencils = [[0, NONE, 2, 3], [4, 1, 2, 3], [4, 5, 6, 7]];
         let mut d = Dormancy::default();
@@ -323,9 +315,6 @@ mod tests {
         d.doze(2, 0, 100);
         d.wake_due(20);
         assert_eq!(sorted(&d), vec![0, 1]);
-        d.doze(0, 0, 50);
-        d.wake_all();
-        assert_eq!(sorted(&d), vec![0, 1, 2]);
     }
 
     #[test]

@@ -139,20 +139,21 @@ fn store_breakpoint(store: Stored<'_>, rel: f64, p: DVec3) {
 }
 
 /// Stores vertex `j`'s staged breakpoints from column `from` on, in time
-/// order (`times[k]` the staged ticks' times), into `store`.
+/// order (`times[k]` the staged ticks' times), into `store`; the columns
+/// whole or a run's part of them.
 #[inline]
-fn store_staged(
+fn store_staged<P: AsRef<[DVec3]>, M: AsRef<[bool]>>(
     store: Stored<'_>,
     times: &[f64],
-    points: &[&mut [DVec3]],
-    marked: &[&mut [bool]],
+    points: &[P],
+    marked: &[M],
     j: usize,
     from: usize,
 ) {
     let (t, p, b) = store;
     for k in from..times.len() {
-        if marked[k][j] {
-            store_breakpoint((&mut *t, &mut *p, &mut *b), times[k], points[k][j]);
+        if marked[k].as_ref()[j] {
+            store_breakpoint((&mut *t, &mut *p, &mut *b), times[k], points[k].as_ref()[j]);
         }
     }
 }
@@ -479,16 +480,15 @@ impl Trajectories {
         if self.holder[i] != self.me {
             return;
         }
-        let (t, p, b) = (&mut self.times[i], &mut self.points[i], &mut self.bounds[i]);
-        for k in from..staged.times.len() {
-            if staged.marked[k][i] {
-                store_breakpoint(
-                    (&mut *t, &mut *p, &mut *b),
-                    staged.times[k],
-                    staged.points[k][i],
-                );
-            }
-        }
+        let store = (&mut self.times[i], &mut self.points[i], &mut self.bounds[i]);
+        store_staged(
+            store,
+            &staged.times,
+            &staged.points,
+            &staged.marked,
+            i,
+            from,
+        );
     }
 
     /// Counts `n` breakpoints recorded through [`TrajectoryRun`]s against the
