@@ -365,7 +365,7 @@ impl Trajectories {
     /// The storage of consecutive runs of vertices (cut at `bounds`, as for
     /// [`crate::Executor::for_each_chunk`]), to stage the breakpoints of the
     /// internal tick `t` on several threads (`None`: only to store what is
-    /// staged, [`Trajectories::flush`] on several threads). Each run must
+    /// staged, as [`Trajectories::flush`] does). Each run must
     /// [`TrajectoryRun::prepare`] first; report what they added with
     /// [`Trajectories::add_recorded`].
     pub fn runs(&mut self, bounds: &[usize], t: Option<Tick>) -> Vec<TrajectoryRun<'_>> {
@@ -408,8 +408,8 @@ impl Trajectories {
             staged.times.push((t - self.start) as f64);
             staged.times.len() - 1
         });
-        let rel = t.map_or(0.0, |t| (t - self.start) as f64);
         let staged_times: &[f64] = &staged.times;
+        let rel = column.map_or(0.0, |k| staged_times[k]);
         let mut columns: Vec<std::vec::IntoIter<(usize, &mut [DVec3])>> =
             (staged.points.iter_mut())
                 .map(|c| split_chunks(c, bounds).into_iter())
@@ -459,13 +459,14 @@ impl Trajectories {
             .collect()
     }
 
-    /// Stores every staged breakpoint (on the calling thread; the engine
-    /// stores them on its executor through [`Trajectories::runs`]).
-    pub fn flush(&mut self) {
-        let n = self.len();
-        for mut run in self.runs(&[0, n], None) {
-            run.prepare();
-        }
+    /// Stores every staged breakpoint, in runs of vertices (cut at
+    /// `bounds`) on `exec`.
+    pub fn flush<E: crate::executor::Executor>(&mut self, exec: &E, bounds: &[usize]) {
+        let mut runs = self.runs(bounds, None);
+        let one_each: Vec<usize> = (0..=runs.len()).collect();
+        exec.for_each_chunk(&mut runs, &one_each, &|_, chunk| {
+            chunk.iter_mut().for_each(TrajectoryRun::prepare)
+        });
     }
 
     /// Stores vertex `i`'s staged breakpoints that are not stored yet.
@@ -649,7 +650,7 @@ mod tests {
                 }
             }
             t.add_recorded(added).unwrap();
-            t.flush();
+            t.flush(&crate::executor::Serial, &bounds);
         }
         assert!(ranks.iter().all(|t| t.breakpoints() == all.breakpoints()));
         // rank 1 sends rank 0 the polylines of the vertices it holds

@@ -235,12 +235,7 @@ impl<E: Executor> Engine<E> {
         // Store the staged internal ticks' breakpoints, then drift everything
         // to the end of the pass (the window end unless the pass was cut
         // short).
-        let mut runs = self.traj.runs(&self.ws.vertex_runs, None);
-        let one_each: Vec<usize> = (0..=runs.len()).collect();
-        self.exec.for_each_chunk(&mut runs, &one_each, &|_, chunk| {
-            chunk.iter_mut().for_each(|r| r.prepare())
-        });
-        drop(runs);
+        self.traj.flush(&self.exec, &self.ws.vertex_runs);
         let w = &mut self.world;
         for i in 0..w.x.len() {
             let p = Self::pos_at(w, i, end);
