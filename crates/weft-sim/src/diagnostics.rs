@@ -119,7 +119,8 @@ pub struct StageSeconds {
     /// Event batches (internal forces, penalty layers, scripts) and trajectories.
     pub events: f64,
     /// The internal-force part of `events`: positions at the tick, stencil
-    /// evaluation and the per-vertex folds of internal ticks.
+    /// evaluation, and the per-vertex folds and new velocities of internal
+    /// ticks.
     #[serde(default)]
     pub internal: f64,
     /// Broad phase (DOPs, BVH, stencil filtering).

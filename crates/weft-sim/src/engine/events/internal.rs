@@ -35,12 +35,14 @@ impl<E: Executor> Engine<E> {
         let ws = &mut self.ws;
         // Per-vertex stages run on the executor in fixed runs of vertices;
         // each writes only its own vertices' entries.
+        let positions = trace::span("tick positions");
         self.exec
             .for_each_chunk(&mut ws.xt, &ws.vertex_runs, &|k, run| {
                 for (j, p) in run.iter_mut().enumerate() {
                     *p = Self::pos_at(w, k * VERTEX_RUN + j, t);
                 }
             });
+        drop(positions);
         let share = self.share.as_ref();
         let (exec, bounds, xt) = (&self.exec, &ws.bounds, &ws.xt);
         match share {
@@ -57,68 +59,115 @@ impl<E: Executor> Engine<E> {
                 })?;
             }
         }
+        // One pass per run of vertices: the ordered fold of the internal
+        // slots, then the islands' kicks at `t` (bucketed by run, each
+        // vertex's in island order), then the new velocity; on one memory
+        // also the first vertex whose new state is not finite. Over ranks
+        // each rank advances the vertices it owns and the new velocities are
+        // all-gathered.
+        let velocities = trace::span("tick velocities");
         let h = w.lattice.h_el();
-        let out = &ws.out;
+        let tsec = w.lattice.seconds(t);
         let owned = |i: usize| share.is_none_or(|s| s.owns(i));
+        let runs = &ws.vertex_runs;
+        let kicks = &mut ws.kicks_by_run;
+        kicks.resize_with(runs.len().saturating_sub(1), Vec::new);
+        kicks.iter_mut().for_each(Vec::clear);
+        for island in islands {
+            for &(i, impulse) in &island.at_internal {
+                if owned(i as usize) {
+                    let i = i as usize;
+                    kicks[i / VERTEX_RUN].push(((i % VERTEX_RUN) as u32, impulse));
+                }
+            }
+        }
+        struct Run<'a> {
+            acc: &'a mut [DVec3],
+            v_new: &'a mut [DVec3],
+            bad: Option<usize>,
+        }
+        let mut v_runs = split_chunks(&mut ws.v_new, runs).into_iter();
+        let mut fused: Vec<Run<'_>> = split_chunks(&mut ws.acc, runs)
+            .into_iter()
+            .map(|(_, acc)| Run {
+                acc,
+                v_new: v_runs.next().expect("one per run").1,
+                bad: None,
+            })
+            .collect();
+        let (out, xt, kicks) = (&ws.out, &ws.xt, &ws.kicks_by_run);
+        let one_each: Vec<usize> = (0..=fused.len()).collect();
         self.exec
-            .for_each_chunk(&mut ws.acc, &ws.vertex_runs, &|k, run| {
-                for (j, a) in run.iter_mut().enumerate() {
-                    let i = k * VERTEX_RUN + j;
+            .for_each_chunk(&mut fused, &one_each, &|k, chunk| {
+                let r = &mut chunk[0];
+                let start = k * VERTEX_RUN;
+                for (j, a) in r.acc.iter_mut().enumerate() {
+                    let i = start + j;
                     if owned(i) && w.inv_mass[i] > 0.0 {
                         let g = w.internal.fold(i, out) - w.gravity * w.mass[i];
                         *a = g * -h;
                     }
                 }
-            });
-        for island in islands {
-            for &(i, impulse) in &island.at_internal {
-                if owned(i as usize) {
-                    ws.acc[i as usize] += impulse;
+                for &(j, impulse) in &kicks[k] {
+                    r.acc[j as usize] += impulse;
                 }
-            }
-        }
-        counts.internal_seconds += clock.elapsed().as_secs_f64();
-        // New velocities; over ranks each rank advances the vertices it owns
-        // and the new velocities are all-gathered.
-        let tsec = w.lattice.seconds(t);
-        let (xt, acc) = (&ws.xt, &ws.acc);
-        self.exec
-            .for_each_chunk(&mut ws.v_new, &ws.vertex_runs, &|k, run| {
-                for (j, v) in run.iter_mut().enumerate() {
-                    let i = k * VERTEX_RUN + j;
+                for (j, v) in r.v_new.iter_mut().enumerate() {
+                    let i = start + j;
                     if owned(i) {
-                        *v = new_velocity(w, i, xt[i], acc[i], tsec, h);
+                        *v = new_velocity(w, i, xt[i], r.acc[j], tsec, h);
                     }
                 }
+                if share.is_none() {
+                    r.bad = (0..r.v_new.len()).map(|j| start + j).find(|&i| {
+                        let v = r.v_new[i - start];
+                        v != w.v[i] && !(xt[i].is_finite() && v.is_finite())
+                    });
+                }
             });
-        if let Some(share) = share {
-            share.exchange_velocities(&self.exec, &mut ws.v_new)?;
-        }
-        self.apply_internal(t)
+        let bad = fused.iter().find_map(|r| r.bad);
+        drop(fused);
+        drop(velocities);
+        counts.internal_seconds += clock.elapsed().as_secs_f64();
+        let bad = match share {
+            None => bad,
+            Some(share) => {
+                share.exchange_velocities(&self.exec, &mut ws.v_new)?;
+                self.first_not_finite()
+            }
+        };
+        self.apply_internal(t, bad)
     }
 
-    /// The end of an internal batch at tick `t`, on the executor in runs of
-    /// vertices: each vertex whose velocity changed takes its new velocity
-    /// (`ws.v_new`) and its position at `t`, and gets a breakpoint. As on one
-    /// thread in vertex order, a non-finite new state stops the batch at the
-    /// first such vertex: the vertices before it are applied, it and the
-    /// later ones are not.
-    fn apply_internal(&mut self, t: Tick) -> Result<(), SimError> {
-        let ws = &mut self.ws;
-        let w = &self.world;
-        let n = w.x.len();
-        let runs = ws.vertex_runs.len().saturating_sub(1);
-        let (xt, v_new) = (&ws.xt, &ws.v_new);
-        let bounds = &ws.vertex_runs;
-        let bad = self
-            .exec
+    /// The first vertex (in vertex order) whose velocity changes to a
+    /// non-finite state at this internal tick, over every vertex (over ranks,
+    /// after the new velocities are all-gathered).
+    fn first_not_finite(&self) -> Option<usize> {
+        let (w, ws) = (&self.world, &self.ws);
+        let (xt, v_new, bounds) = (&ws.xt, &ws.v_new, &ws.vertex_runs);
+        let runs = bounds.len().saturating_sub(1);
+        self.exec
             .map(runs, &|k| {
                 (bounds[k]..bounds[k + 1])
                     .find(|&i| v_new[i] != w.v[i] && !(xt[i].is_finite() && v_new[i].is_finite()))
             })
             .into_iter()
             .flatten()
-            .next();
+            .next()
+    }
+
+    /// The end of an internal batch at tick `t`, on the executor in runs of
+    /// vertices: each vertex whose velocity changed takes its new velocity
+    /// (`ws.v_new`) and its position at `t`, and gets a breakpoint. As on one
+    /// thread in vertex order, a non-finite new state stops the batch at the
+    /// first such vertex, `bad`: the vertices before it are applied, it and
+    /// the later ones are not.
+    fn apply_internal(&mut self, t: Tick, bad: Option<usize>) -> Result<(), SimError> {
+        let _span = trace::span("tick states");
+        let ws = &mut self.ws;
+        let n = self.world.x.len();
+        let xt = &ws.xt;
+        let v_new = &ws.v_new;
+        let bounds = &ws.vertex_runs;
         let limit = bad.unwrap_or(n);
         struct Run<'a> {
             start: usize,

@@ -63,7 +63,8 @@ pub(super) struct PassCounts {
     pub(super) islands: u64,
     pub(super) largest_island_layer_events: u64,
     pub(super) min_separation: f64,
-    /// Wall seconds of the internal-force part of internal ticks.
+    /// Wall seconds of the internal-force part of internal ticks (up to
+    /// the new velocities).
     pub(super) internal_seconds: f64,
     /// The pass ended early because a value became non-finite.
     pub(super) truncated: Option<SimError>,
@@ -98,6 +99,9 @@ pub(super) struct Workspace {
     /// The islands' breakpoints of a segment by vertex run: (vertex in the
     /// run, tick, position).
     breakpoints_by_run: Vec<Vec<(u32, Tick, DVec3)>>,
+    /// The islands' kicks at an internal tick by vertex run: (vertex in the
+    /// run, impulse), each vertex's in fold order.
+    kicks_by_run: Vec<Vec<(u32, DVec3)>>,
 }
 
 impl Workspace {
@@ -173,6 +177,11 @@ impl<E: Executor> Engine<E> {
             ..Default::default()
         };
         self.traj.begin(t0, &self.world.x);
+        let h_el = self.world.lattice.internal_step();
+        let w = &self.world;
+        self.traj.reserve(ticks_in(t0, t1, h_el) as usize + 2, |i| {
+            w.inv_mass[i] > 0.0 || w.script_of[i].is_some()
+        });
         let active: Vec<(StencilKey, u32)> = (self.world.layers.stencils.iter())
             .map(|(k, s)| (*k, s.depth))
             .collect();
@@ -184,7 +193,6 @@ impl<E: Executor> Engine<E> {
             .map(|l| (sched.eta(l), sched.k(l), sched.step(l)))
             .collect();
         self.begin_islands(&active, &layer_consts, (t0, t1), &mut counts);
-        let h_el = self.world.lattice.internal_step();
         let mut end = t1;
         let mut s = t0;
         let mut segments = 0u64;
