@@ -176,9 +176,11 @@ impl<E: Executor> Engine<E> {
             min_separation: f64::INFINITY,
             ..Default::default()
         };
+        let begin = trace::span("pass begin");
         self.traj.begin(t0, &self.world.x);
         let h_el = self.world.lattice.internal_step();
         let w = &self.world;
+        // every internal tick gives a moving vertex a breakpoint
         self.traj.reserve(ticks_in(t0, t1, h_el) as usize + 2, |i| {
             w.inv_mass[i] > 0.0 || w.script_of[i].is_some()
         });
@@ -193,6 +195,7 @@ impl<E: Executor> Engine<E> {
             .map(|l| (sched.eta(l), sched.k(l), sched.step(l)))
             .collect();
         self.begin_islands(&active, &layer_consts, (t0, t1), &mut counts);
+        drop(begin);
         let mut end = t1;
         let mut s = t0;
         let mut segments = 0u64;
@@ -243,6 +246,7 @@ impl<E: Executor> Engine<E> {
         // Store the staged internal ticks' breakpoints, then drift everything
         // to the end of the pass (the window end unless the pass was cut
         // short).
+        let _end = trace::span("pass end");
         self.traj.flush(&self.exec, &self.ws.vertex_runs);
         let w = &mut self.world;
         for i in 0..w.x.len() {
@@ -370,6 +374,7 @@ impl<E: Executor> Engine<E> {
         t0: Tick,
         counts: &mut PassCounts,
     ) -> Result<Option<SimError>, SimError> {
+        let _span = trace::span("islands merge");
         let w = &mut self.world;
         let mut blew_up: Option<(Tick, u32)> = None;
         // The breakpoints go to their vertices' runs, each run's in island
