@@ -89,8 +89,8 @@ fn angle_and_gradient(x: &[DVec3; 4]) -> (f64, [DVec3; 4]) {
 }
 
 /// `dθ/dx` alone (zero for a degenerate current shape): the damping force
-/// needs no angle, and `atan2` is the costliest step of a hinge (on the
-/// 10k twister, a fifth of the internal forces' time went to it).
+/// needs no angle, and `atan2` is the costliest step of a hinge (with two
+/// per hinge, it took a fifth of a 10k twister run).
 #[inline(always)]
 fn angle_gradient(x: &[DVec3; 4]) -> [DVec3; 4] {
     angle_terms(x).map_or([DVec3::ZERO; 4], |(_, g)| g)
