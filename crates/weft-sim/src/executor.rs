@@ -52,6 +52,13 @@ pub trait Executor: Sync {
         task: &(dyn Fn(usize, &mut [T]) + Sync),
     );
 
+    /// Calls `task(k, &mut items[k])` for every item, each a task of its own
+    /// (items that carry their own slices: runs of vertices, say).
+    fn for_each_item<T: Send>(&self, items: &mut [T], task: &(dyn Fn(usize, &mut T) + Sync)) {
+        let one_each: Vec<usize> = (0..=items.len()).collect();
+        self.for_each_chunk(items, &one_each, &|k, chunk| task(k, &mut chunk[0]));
+    }
+
     /// `(0..n).map(f)`, possibly in parallel; results in index order.
     fn map<R: Send>(&self, n: usize, f: &(dyn Fn(usize) -> R + Sync)) -> Vec<R>;
 

@@ -487,10 +487,7 @@ impl Trajectories {
     /// `bounds`) on `exec`.
     pub fn flush<E: crate::executor::Executor>(&mut self, exec: &E, bounds: &[usize]) {
         let mut runs = self.runs(bounds, None);
-        let one_each: Vec<usize> = (0..=runs.len()).collect();
-        exec.for_each_chunk(&mut runs, &one_each, &|_, chunk| {
-            chunk.iter_mut().for_each(TrajectoryRun::prepare)
-        });
+        exec.for_each_item(&mut runs, &|_, run| run.prepare());
     }
 
     /// Stores vertex `i`'s staged breakpoints that are not stored yet.
@@ -779,7 +776,7 @@ mod tests {
         let before = t.points[0].capacity();
         t.reserve(100, |_| true);
         assert_eq!(t.points[0].capacity(), before);
-        // 3 moving vertices × 100 breakpoints do not fit in 200 breakpoints
+        // 4 moving vertices × 100 breakpoints do not fit in 200 breakpoints
         let mut small = Trajectories::new(4, 200 * BYTES_PER_BREAKPOINT);
         small.begin(0, &x);
         small.reserve(100, |_| true);

@@ -6,7 +6,7 @@ use std::time::Instant;
 use glam::DVec3;
 
 use super::island::SegmentOutput;
-use super::{budget_error, VERTEX_RUN};
+use super::{bucket_by_run, budget_error, VERTEX_RUN};
 use crate::clock::Tick;
 use crate::engine::Engine;
 use crate::error::SimError;
@@ -70,17 +70,9 @@ impl<E: Executor> Engine<E> {
         let tsec = w.lattice.seconds(t);
         let owned = |i: usize| share.is_none_or(|s| s.owns(i));
         let runs = &ws.vertex_runs;
-        let kicks = &mut ws.kicks_by_run;
-        kicks.resize_with(runs.len().saturating_sub(1), Vec::new);
-        kicks.iter_mut().for_each(Vec::clear);
-        for island in islands {
-            for &(i, impulse) in &island.at_internal {
-                if owned(i as usize) {
-                    let i = i as usize;
-                    kicks[i / VERTEX_RUN].push(((i % VERTEX_RUN) as u32, impulse));
-                }
-            }
-        }
+        let at_internal = islands.iter().flat_map(|island| &island.at_internal);
+        let owned_kicks = at_internal.filter(|&&(i, _)| owned(i as usize)).copied();
+        bucket_by_run(&mut ws.kicks_by_run, runs, owned_kicks);
         struct Run<'a> {
             acc: &'a mut [DVec3],
             v_new: &'a mut [DVec3],
@@ -96,34 +88,30 @@ impl<E: Executor> Engine<E> {
             })
             .collect();
         let (out, xt, kicks) = (&ws.out, &ws.xt, &ws.kicks_by_run);
-        let one_each: Vec<usize> = (0..=fused.len()).collect();
-        self.exec
-            .for_each_chunk(&mut fused, &one_each, &|k, chunk| {
-                let r = &mut chunk[0];
-                let start = k * VERTEX_RUN;
-                for (j, a) in r.acc.iter_mut().enumerate() {
-                    let i = start + j;
-                    if owned(i) && w.inv_mass[i] > 0.0 {
-                        let g = w.internal.fold(i, out) - w.gravity * w.mass[i];
-                        *a = g * -h;
-                    }
+        self.exec.for_each_item(&mut fused, &|k, r| {
+            let start = k * VERTEX_RUN;
+            for (j, a) in r.acc.iter_mut().enumerate() {
+                let i = start + j;
+                if owned(i) && w.inv_mass[i] > 0.0 {
+                    let g = w.internal.fold(i, out) - w.gravity * w.mass[i];
+                    *a = g * -h;
                 }
-                for &(j, impulse) in &kicks[k] {
-                    r.acc[j as usize] += impulse;
+            }
+            for &(j, impulse) in &kicks[k] {
+                r.acc[j as usize] += impulse;
+            }
+            for (j, v) in r.v_new.iter_mut().enumerate() {
+                let i = start + j;
+                if owned(i) {
+                    *v = new_velocity(w, i, xt[i], r.acc[j], tsec, h);
                 }
-                for (j, v) in r.v_new.iter_mut().enumerate() {
-                    let i = start + j;
-                    if owned(i) {
-                        *v = new_velocity(w, i, xt[i], r.acc[j], tsec, h);
-                    }
-                }
-                if share.is_none() {
-                    r.bad = (0..r.v_new.len()).map(|j| start + j).find(|&i| {
-                        let v = r.v_new[i - start];
-                        v != w.v[i] && !(xt[i].is_finite() && v.is_finite())
-                    });
-                }
-            });
+            }
+            if share.is_none() {
+                r.bad = (0..r.v_new.len())
+                    .find(|&j| blows_up(w, start + j, xt, r.v_new[j]))
+                    .map(|j| start + j);
+            }
+        });
         let bad = fused.iter().find_map(|r| r.bad);
         drop(fused);
         drop(velocities);
@@ -147,8 +135,7 @@ impl<E: Executor> Engine<E> {
         let runs = bounds.len().saturating_sub(1);
         self.exec
             .map(runs, &|k| {
-                (bounds[k]..bounds[k + 1])
-                    .find(|&i| v_new[i] != w.v[i] && !(xt[i].is_finite() && v_new[i].is_finite()))
+                (bounds[k]..bounds[k + 1]).find(|&i| blows_up(w, i, xt, v_new[i]))
             })
             .into_iter()
             .flatten()
@@ -195,23 +182,19 @@ impl<E: Executor> Engine<E> {
                 added: 0,
             })
             .collect();
-        let one_each: Vec<usize> = (0..=apply_runs.len()).collect();
-        self.exec
-            .for_each_chunk(&mut apply_runs, &one_each, &|_, chunk| {
-                for r in chunk {
-                    r.traj.prepare();
-                    let end = r.x.len().min(limit.saturating_sub(r.start));
-                    for j in 0..end {
-                        let i = r.start + j;
-                        if v_new[i] != r.v[j] {
-                            r.x[j] = xt[i];
-                            r.tau[j] = t;
-                            r.v[j] = v_new[i];
-                            r.added += usize::from(r.traj.stage(j, xt[i]));
-                        }
-                    }
+        self.exec.for_each_item(&mut apply_runs, &|_, r| {
+            r.traj.prepare();
+            let end = r.x.len().min(limit.saturating_sub(r.start));
+            for j in 0..end {
+                let i = r.start + j;
+                if v_new[i] != r.v[j] {
+                    r.x[j] = xt[i];
+                    r.tau[j] = t;
+                    r.v[j] = v_new[i];
+                    r.added += usize::from(r.traj.stage(j, xt[i]));
                 }
-            });
+            }
+        });
         let added = apply_runs.iter().map(|r| r.added).sum();
         drop(apply_runs);
         let world = &self.world;
@@ -227,6 +210,13 @@ impl<E: Executor> Engine<E> {
         }
         Ok(())
     }
+}
+
+/// Whether vertex `i` changes velocity to `v_new` at this internal tick with
+/// a non-finite state (its position there `xt[i]`, or `v_new`).
+#[inline]
+fn blows_up(w: &World, i: usize, xt: &[DVec3], v_new: DVec3) -> bool {
+    v_new != w.v[i] && !(xt[i].is_finite() && v_new.is_finite())
 }
 
 /// Vertex `i`'s velocity after the internal batch at `tsec` in which it

@@ -98,7 +98,7 @@ pub(super) struct Workspace {
     pass_end: Tick,
     /// The islands' breakpoints of a segment by vertex run: (vertex in the
     /// run, tick, position).
-    breakpoints_by_run: Vec<Vec<(u32, Tick, DVec3)>>,
+    breakpoints_by_run: Vec<Vec<(u32, (Tick, DVec3))>>,
     /// The islands' kicks at an internal tick by vertex run: (vertex in the
     /// run, impulse), each vertex's in fold order.
     kicks_by_run: Vec<Vec<(u32, DVec3)>>,
@@ -125,6 +125,22 @@ impl Workspace {
     /// between passes (the predictor's accelerations).
     pub(super) fn internal_scratch(&mut self) -> (&[usize], &mut [DVec3]) {
         (&self.bounds, &mut self.out)
+    }
+}
+
+/// Sorts `items` (vertex, value) into one bucket per run of vertices (cut
+/// at `runs`, every [`VERTEX_RUN`]) as (vertex in the run, value), each
+/// bucket in the order of `items`; the buckets keep their memory.
+fn bucket_by_run<T>(
+    buckets: &mut Vec<Vec<(u32, T)>>,
+    runs: &[usize],
+    items: impl Iterator<Item = (u32, T)>,
+) {
+    buckets.resize_with(runs.len().saturating_sub(1), Vec::new);
+    buckets.iter_mut().for_each(Vec::clear);
+    for (i, value) in items {
+        let i = i as usize;
+        buckets[i / VERTEX_RUN].push(((i % VERTEX_RUN) as u32, value));
     }
 }
 
@@ -386,28 +402,18 @@ impl<E: Executor> Engine<E> {
         let parallel = count > 0 && self.traj.fits(count);
         if parallel {
             let runs = &self.ws.vertex_runs;
-            let by_run = &mut self.ws.breakpoints_by_run;
-            by_run.resize_with(runs.len().saturating_sub(1), Vec::new);
-            by_run.iter_mut().for_each(Vec::clear);
-            for out in outputs {
-                for &(i, t, x) in &out.breakpoints {
-                    let (run, j) = (i as usize / VERTEX_RUN, i as usize % VERTEX_RUN);
-                    by_run[run].push((j as u32, t, x));
-                }
-            }
+            let all = outputs.iter().flat_map(|out| &out.breakpoints);
+            let breakpoints = all.map(|&(i, t, x)| (i, (t, x)));
+            bucket_by_run(&mut self.ws.breakpoints_by_run, runs, breakpoints);
             let mut record = self.traj.record_runs(runs);
-            let one_each: Vec<usize> = (0..=record.len()).collect();
             let by_run = &self.ws.breakpoints_by_run;
             let added = std::sync::atomic::AtomicUsize::new(0);
-            self.exec
-                .for_each_chunk(&mut record, &one_each, &|k, chunk| {
-                    for r in chunk {
-                        let n = (by_run[k].iter())
-                            .filter(|&&(j, t, x)| r.record(j as usize, t, x))
-                            .count();
-                        added.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
-                    }
-                });
+            self.exec.for_each_item(&mut record, &|k, r| {
+                let n = (by_run[k].iter())
+                    .filter(|&&(j, (t, x))| r.record(j as usize, t, x))
+                    .count();
+                added.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
+            });
             drop(record);
             self.traj
                 .add_recorded(added.into_inner())
