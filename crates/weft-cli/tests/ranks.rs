@@ -111,9 +111,9 @@ mod mpi {
     use std::process::Command;
     use std::time::{Duration, Instant};
 
-    /// `state_hash` of the threads issue's determinism fixture (the same
-    /// constant as `weft-par/tests/determinism.rs`).
-    const FIXTURE_HASH: &str = "8995028407ecd8365b22d59d5a36a74b";
+    /// `state_hash` of the threads issue's determinism fixture, with layer
+    /// prediction on (the same constant as `weft-par/tests/determinism.rs`).
+    const FIXTURE_HASH: &str = "021debdfd07a53f5cf991d11fb17bbc1";
     const FIXTURE: &[&str] = &[
         "--set",
         "size=300",

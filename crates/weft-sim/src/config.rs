@@ -20,7 +20,8 @@ pub struct ContactConfig {
     pub retire_after_windows: u32,
     /// Activate layers before a window for the stencils its extrapolated
     /// motion brings into them (`engine/predict.rs`): fewer rollbacks, the
-    /// same trajectory (policy independence, `acm-spec.md` §4).
+    /// same trajectory (policy independence, `acm-spec.md` §4). On in
+    /// `Default` and in scenes (`contact.predict`).
     #[serde(default)]
     pub predict: bool,
     /// Coulomb friction coefficient (0 = off).
@@ -38,7 +39,7 @@ impl Default for ContactConfig {
             layer1_step_shift: 0,
             layers_per_detection: 5,
             retire_after_windows: 3,
-            predict: false,
+            predict: true,
             friction: 0.0,
             max_rollbacks: 1000,
         }

@@ -159,11 +159,15 @@ fn folding_onto_itself_conserves_momentum_and_energy() {
     let mut max_depth = 0;
     let mut energies = Vec::new();
     let mut contact_started = false;
+    // Windows in which a penalty layer kicked (with layer prediction on, a
+    // contact need not cost a rollback, so rollbacks do not count contacts).
+    let mut kicking_windows = 0;
     for _ in 0..120 {
         let s = engine.step_window().unwrap();
         rollbacks += s.rollbacks;
         max_depth = max_depth.max(s.max_depth);
-        contact_started |= s.rollbacks > 0;
+        contact_started |= s.layer_kicks > 0;
+        kicking_windows += u32::from(s.layer_kicks > 0);
         // Energy is compared between contacts (no stencil inside a layer at
         // the window end): inside a contact the staggered velocities of the
         // layer clocks make the instantaneous sum oscillate by O(omega h).
@@ -184,7 +188,8 @@ fn folding_onto_itself_conserves_momentum_and_energy() {
         );
     }
     println!(
-        "rollbacks {rollbacks}, max depth {max_depth}, contact-free windows after contact {}",
+        "rollbacks {rollbacks}, windows with kicks {kicking_windows}, max depth {max_depth}, \
+         contact-free windows after contact {}",
         energies.len()
     );
     assert!(
@@ -192,8 +197,8 @@ fn folding_onto_itself_conserves_momentum_and_energy() {
         "too few contact-free windows to judge the energy"
     );
     assert!(
-        rollbacks >= 10,
-        "the fold must make contact repeatedly: {rollbacks} rollbacks"
+        kicking_windows >= 10,
+        "the fold must make contact repeatedly: {kicking_windows} windows with kicks"
     );
     assert!(max_depth >= 3, "layer depth {max_depth} < 3");
     let e0 = energies[0];
@@ -246,7 +251,8 @@ fn folding_with_friction_conserves_linear_momentum() {
             );
         }
         println!("mu = {mu}: {rollbacks} rollbacks, {kicks} layer kicks");
-        assert!(rollbacks >= 5 && kicks > 1000, "the fold must make contact");
+        // Layer prediction takes most rollbacks away; the kicks are the contact.
+        assert!(kicks > 1000, "the fold must make contact");
         engine.world.v.clone()
     };
     let sliding = run(0.0);

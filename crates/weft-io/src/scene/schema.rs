@@ -165,7 +165,7 @@ fn default_retire() -> u32 {
     3
 }
 fn default_predict() -> bool {
-    false
+    true
 }
 fn default_max_rollbacks() -> u32 {
     1000
