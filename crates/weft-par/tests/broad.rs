@@ -110,3 +110,64 @@ fn ranks_match_serial() {
         }
     }
 }
+
+/// Spread over ranks ([`BroadPhase::spread`]): each rank builds the trees of
+/// its own groups and of the groups its traversals pair with them, not all
+/// of them, and every rank still gets the candidates of one tree over all
+/// triangles, with the same triangle-pair count.
+#[test]
+fn spread_ranks_build_their_neighbourhood_and_match_serial() {
+    let n = 60;
+    let (tris, inv_mass, traj) = folded(n, 2);
+    let h = 1.0 / (n - 1) as f64;
+    let expected = BroadPhase::default().candidates(&tris, &inv_mass, &traj, 0.3 * h);
+    let mut one = BroadPhase::default();
+    one.candidates(&tris, &inv_mass, &traj, 0.3 * h);
+    // 12 groups of whole rows (the fold brings each row close to itself
+    // only), the last 40 triangles under an unplaced label (`NONE`, as the
+    // obstacles have): 13 groups.
+    let groups = 12;
+    let labels: Vec<u32> = (0..tris.len())
+        .map(|t| {
+            if t + 40 >= tris.len() {
+                weft_core::NONE
+            } else {
+                (t * groups / tris.len()) as u32
+            }
+        })
+        .collect();
+    for ranks in 1..=4 {
+        let got = weft_par::ranks::in_process(
+            ranks,
+            |_| Serial,
+            |exec| {
+                let mut bp = BroadPhase::grouped(&labels);
+                bp.spread((0..groups).map(|g| (g * ranks / groups) as u32).collect());
+                let mut rounds = Vec::new();
+                for _ in 0..2 {
+                    // the second round refits the trees
+                    let keys = bp
+                        .candidates_on(&exec, &tris, &inv_mass, &traj, 0.3 * h)
+                        .unwrap();
+                    rounds.push((keys, bp.last_pairs, bp.last_trees));
+                }
+                rounds
+            },
+        );
+        for (rank, rounds) in got.into_iter().enumerate() {
+            for (round, (keys, pairs, trees)) in rounds.into_iter().enumerate() {
+                let at = format!("rank {rank} of {ranks}, round {round}");
+                println!("{at}: {trees} trees");
+                assert_eq!(keys, expected, "{at}");
+                assert_eq!(pairs, one.last_pairs, "{at}");
+                if ranks == 1 {
+                    assert_eq!(trees, groups + 1, "{at}");
+                } else {
+                    // its own 3 to 6 row groups (and the unplaced group on
+                    // the last rank), their neighbours, and not the rest
+                    assert!(trees < groups + 1 - 2, "{at}: {trees} trees");
+                }
+            }
+        }
+    }
+}

@@ -97,11 +97,21 @@ pub struct BroadPhase {
     pub last_pairs: usize,
     /// Overlapping group pairs (window hulls) of the last pass.
     pub last_group_pairs: Vec<(u32, u32)>,
+    /// Over ranks, the rank of each label (a partition's home rank; a label
+    /// past the end, such as `NONE` for the obstacles, goes to the last
+    /// rank). Empty: every rank builds every tree.
+    label_ranks: Vec<u32>,
+    /// Groups whose leaves and tree this rank computed in the last pass (all
+    /// of them on one memory; over ranks with [`BroadPhase::spread`], its own
+    /// and those its traversals pair with them).
+    pub last_trees: usize,
 }
 
 /// The triangles of one group and their tree.
 #[derive(Clone, Debug, Default)]
 struct Group {
+    /// the label its triangles carry.
+    label: u32,
     /// triangle ids, ascending (tree leaf `i` is triangle `members[i]`).
     members: Vec<u32>,
     /// every vertex of every member is kinematic (set every pass).
@@ -139,6 +149,15 @@ impl BroadPhase {
             labels: labels.to_vec(),
             ..Self::default()
         }
+    }
+
+    /// Over ranks: each group's leaves and tree are computed by the rank of
+    /// its label (`label_ranks[label]`, a partition's home rank; labels past
+    /// the end go to the last rank), and by the ranks whose traversals pair
+    /// a group of theirs with it; the window hulls are all-gathered.
+    /// Without it (or on one memory) every rank builds every tree.
+    pub fn spread(&mut self, label_ranks: Vec<u32>) {
+        self.label_ranks = label_ranks;
     }
 
     /// Candidate stencils of the window whose trajectories are `traj`, on the
@@ -193,6 +212,8 @@ impl BroadPhase {
             owners,
             last_pairs,
             last_group_pairs,
+            label_ranks,
+            last_trees,
         } = self;
 
         // Vertex DOPs: every breakpoint of the vertex in the window. Over
@@ -212,17 +233,27 @@ impl BroadPhase {
                 *d = [raw, inflated];
             }
         });
+        let vd: &[[Dop26; 2]] = vertex_dops;
+        let filter = Filter {
+            triangles,
+            inv_mass,
+            vertex_dops: vd,
+            inflate,
+            exact_unions: !vd.iter().any(|d| d[0].is_empty()),
+        };
+        if exec.ranks() > 1 && !label_ranks.is_empty() && groups.len() > 1 {
+            let found = spread_candidates(exec, groups, label_ranks, &filter, bounds)?;
+            (*last_trees, *last_pairs, *last_group_pairs) =
+                (found.trees, found.pairs, found.group_pairs);
+            return Ok(found.keys);
+        }
 
         // Triangle DOPs: the union of the corners', inflated.
         tri_dops.resize(triangles.len(), Dop26::empty());
         runs(triangles.len(), bounds);
-        let vd: &[[Dop26; 2]] = vertex_dops;
         exec.for_each_chunk(tri_dops, bounds, &|k, chunk: &mut [Dop26]| {
             for (t, d) in triangles[k * RUN..].iter().zip(chunk.iter_mut()) {
-                *d = vd[t[0] as usize][0];
-                d.merge(&vd[t[1] as usize][0]);
-                d.merge(&vd[t[2] as usize][0]);
-                d.inflate(inflate);
+                *d = filter.leaf(*t);
             }
         });
 
@@ -231,20 +262,9 @@ impl BroadPhase {
         bounds.clear();
         bounds.extend(0..=groups.len());
         exec.for_each_chunk(groups, bounds, &|_, chunk: &mut [Group]| {
-            let g = &mut chunk[0];
-            g.kinematic = g.members.iter().all(|&t| {
-                triangles[t as usize]
-                    .iter()
-                    .all(|&v| inv_mass[v as usize] <= 0.0)
-            });
-            g.leaves.clear();
-            g.leaves.extend(g.members.iter().map(|&t| td[t as usize]));
-            if g.bvh.len() == g.leaves.len() {
-                g.bvh.refit(&g.leaves);
-            } else {
-                g.bvh = Bvh::build(&g.leaves);
-            }
+            chunk[0].update(&filter, |t| td[t as usize]);
         });
+        *last_trees = groups.len();
 
         // Window hulls, their overlapping pairs, and the traversal tasks.
         let hulls: Vec<Dop26> = groups.iter().map(|g| g.bvh.root_bounds()).collect();
@@ -253,47 +273,193 @@ impl BroadPhase {
 
         let n = tasks.len();
         let (groups, tasks): (&[Group], &[Task]) = (groups, tasks);
-        let filter = Filter {
-            triangles,
-            inv_mass,
-            vertex_dops: vd,
-            tri_dops: td,
-            inflate,
-            exact_unions: !vd.iter().any(|d| d[0].is_empty()),
-        };
         // Task costs differ by orders of magnitude (a partition's own pairs
         // against a pair of partitions that barely touch) and neighbouring
         // tasks are alike, so over ranks they are dealt round robin.
         owners.clear();
         owners.extend((0..n).map(|k| (k % exec.ranks()) as u32));
         let outs = exec.map_on_ranks(n, owners, &|k| {
-            let mut out = TaskOut::default();
             let Task { a, b, nodes } = tasks[k];
             let (ga, gb) = (&groups[a as usize], &groups[b as usize]);
-            let mut found = |i: u32, j: u32| {
-                out.pairs += 1;
-                let (ta, tb) = (ga.members[i as usize], gb.members[j as usize]);
-                filter.stencils_of_pair(ta as usize, tb as usize, &mut out.keys);
-            };
+            let mut out = TaskOut::default();
+            let mut found = |i: u32, j: u32| filter.found(ga, i, gb, j, &mut out);
             if a == b {
                 ga.bvh.overlaps_from(nodes, &mut found);
             } else {
                 ga.bvh.overlaps_with_from(&gb.bvh, nodes, &mut found);
             }
-            out.keys.sort_unstable();
-            out.keys.dedup();
-            out
+            out.finish()
         })?;
+        let found = merge(outs);
+        *last_pairs = found.pairs;
+        Ok(found.keys)
+    }
+}
 
-        *last_pairs = outs.iter().map(|o| o.pairs).sum();
-        let mut keys = Vec::with_capacity(outs.iter().map(|o| o.keys.len()).sum());
-        for o in &outs {
-            keys.extend_from_slice(&o.keys);
+/// What a broad-phase pass found.
+#[derive(Default)]
+struct Found {
+    keys: Vec<StencilKey>,
+    pairs: usize,
+    trees: usize,
+    group_pairs: Vec<(u32, u32)>,
+}
+
+/// The tasks' keys concatenated, sorted and deduplicated (concatenated
+/// sorted runs: the stable sort merges them), and their pair count.
+fn merge(outs: Vec<TaskOut>) -> Found {
+    let pairs = outs.iter().map(|o| o.pairs).sum();
+    let mut keys = Vec::with_capacity(outs.iter().map(|o| o.keys.len()).sum());
+    for o in &outs {
+        keys.extend_from_slice(&o.keys);
+    }
+    keys.sort();
+    keys.dedup();
+    Found {
+        keys,
+        pairs,
+        ..Found::default()
+    }
+}
+
+/// The broad phase spread over ranks ([`BroadPhase::spread`]).
+///
+/// 1. Each rank computes the leaves and the tree of its own groups.
+/// 2. The window hulls (each group's root bound) and kinematic flags are
+///    all-gathered: every rank finds the same overlapping pairs.
+/// 3. Each traversal — a group with itself, or an overlapping pair — runs
+///    whole on one rank: a group's self-traversal on its rank; a pair on the
+///    rank of its dynamic side if the other is kinematic (the obstacles pair
+///    with many groups), else on the rank of `a` or `b` by the parity of
+///    `a + b`. That rank computes the other side's leaves and tree too, from
+///    the all-gathered vertex DOPs (with state owned by ranks these leaves
+///    would travel point to point instead).
+/// 4. The traversals' keys reach every rank, as on one memory.
+///
+/// A rank so computes the trees of its own groups and their overlapping
+/// neighbours', not all of them. The candidates are the same set: the pairs
+/// of overlapping hulls and the leaves of each tree are those of one memory,
+/// whoever computes them.
+fn spread_candidates<E: Executor>(
+    exec: &E,
+    groups: &mut [Group],
+    label_ranks: &[u32],
+    filter: &Filter,
+    bounds: &mut Vec<usize>,
+) -> Result<Found, CommError> {
+    let me = exec.rank() as u32;
+    let last = exec.ranks() as u32 - 1;
+    let rank: Vec<u32> = (groups.iter())
+        .map(|g| {
+            label_ranks
+                .get(g.label as usize)
+                .copied()
+                .unwrap_or(last)
+                .min(last)
+        })
+        .collect();
+    let direct = |t: u32| filter.leaf(filter.triangles[t as usize]);
+    bounds.clear();
+    bounds.extend(0..=groups.len());
+    exec.for_each_chunk(groups, bounds, &|g, chunk: &mut [Group]| {
+        if rank[g] == me {
+            chunk[0].update(filter, direct);
         }
-        // Concatenated sorted runs: the stable sort merges them.
-        keys.sort();
-        keys.dedup();
-        Ok(keys)
+    });
+    let gathered = {
+        let groups: &[Group] = groups;
+        exec.map_on_ranks(groups.len(), &rank, &|g| {
+            (groups[g].bvh.root_bounds(), groups[g].kinematic)
+        })?
+    };
+    let hulls: Vec<Dop26> = gathered.iter().map(|h| h.0).collect();
+    let kinematic: Vec<bool> = gathered.iter().map(|h| h.1).collect();
+    let group_pairs = overlapping_pairs(&hulls);
+    // The traversals: (a, b), a == b for a group with itself, and the rank
+    // each runs on.
+    let mut items: Vec<(u32, u32)> = Vec::new();
+    let mut owner: Vec<u32> = Vec::new();
+    for g in 0..groups.len() {
+        if !kinematic[g] {
+            items.push((g as u32, g as u32));
+            owner.push(rank[g]);
+        }
+    }
+    for &(a, b) in &group_pairs {
+        let (ka, kb) = (kinematic[a as usize], kinematic[b as usize]);
+        if ka && kb {
+            continue;
+        }
+        let side = if ka || (!kb && (a + b) % 2 == 1) {
+            b
+        } else {
+            a
+        };
+        items.push((a, b));
+        owner.push(rank[side as usize]);
+    }
+    // The other sides of this rank's traversals.
+    let mut needed = vec![false; groups.len()];
+    for (&(a, b), &r) in items.iter().zip(&owner) {
+        if r == me {
+            needed[a as usize] = true;
+            needed[b as usize] = true;
+        }
+    }
+    exec.for_each_chunk(groups, bounds, &|g, chunk: &mut [Group]| {
+        if needed[g] && rank[g] != me {
+            chunk[0].update(filter, direct);
+        }
+    });
+    let trees = (0..groups.len())
+        .filter(|&g| rank[g] == me || needed[g])
+        .count();
+    let groups: &[Group] = groups;
+    let outs = exec.map_on_ranks(items.len(), &owner, &|k| {
+        let (a, b) = items[k];
+        let (ga, gb) = (&groups[a as usize], &groups[b as usize]);
+        let mut out = TaskOut::default();
+        let mut found = |i: u32, j: u32| filter.found(ga, i, gb, j, &mut out);
+        if a == b {
+            ga.bvh.self_overlaps(&mut found);
+        } else {
+            ga.bvh.overlaps_with(&gb.bvh, &mut found);
+        }
+        out.finish()
+    })?;
+    Ok(Found {
+        trees,
+        group_pairs,
+        ..merge(outs)
+    })
+}
+
+impl Group {
+    /// This pass's leaves (`leaf(t)` for each member `t`), kinematic flag and
+    /// tree: built on the first pass, refitted after.
+    fn update(&mut self, filter: &Filter, leaf: impl Fn(u32) -> Dop26) {
+        let (triangles, inv_mass) = (filter.triangles, filter.inv_mass);
+        self.kinematic = self.members.iter().all(|&t| {
+            triangles[t as usize]
+                .iter()
+                .all(|&v| inv_mass[v as usize] <= 0.0)
+        });
+        self.leaves.clear();
+        self.leaves.extend(self.members.iter().map(|&t| leaf(t)));
+        if self.bvh.len() == self.leaves.len() {
+            self.bvh.refit(&self.leaves);
+        } else {
+            self.bvh = Bvh::build(&self.leaves);
+        }
+    }
+}
+
+impl TaskOut {
+    /// Sorted and deduplicated.
+    fn finish(mut self) -> Self {
+        self.keys.sort_unstable();
+        self.keys.dedup();
+        self
     }
 }
 
@@ -306,8 +472,9 @@ fn make_groups(labels: &[u32], triangles: usize) -> Vec<Group> {
         by_label.entry(label).or_default().push(t as u32);
     }
     by_label
-        .into_values()
-        .map(|members| Group {
+        .into_iter()
+        .map(|(label, members)| Group {
+            label,
             members,
             ..Group::default()
         })
@@ -358,8 +525,6 @@ struct Filter<'a> {
     inv_mass: &'a [f64],
     /// per vertex: raw and inflated DOP.
     vertex_dops: &'a [[Dop26; 2]],
-    /// per triangle: its leaf (inflated).
-    tri_dops: &'a [Dop26],
     inflate: f64,
     /// every vertex DOP is non-empty: unions of inflated DOPs are the
     /// inflated unions (module documentation).
@@ -367,10 +532,32 @@ struct Filter<'a> {
 }
 
 impl Filter<'_> {
-    /// Appends the stencils of [`stencils_of_pair`] between triangles `a` and
-    /// `b` that pass [`primitives_overlap`] (same answers, cheaper DOPs).
+    /// Triangle `t`'s leaf: the union of its corners' DOPs, inflated.
     #[inline]
-    fn stencils_of_pair(&self, a: usize, b: usize, out: &mut Vec<StencilKey>) {
+    fn leaf(&self, t: [u32; 3]) -> Dop26 {
+        let vd = self.vertex_dops;
+        let mut d = vd[t[0] as usize][0];
+        d.merge(&vd[t[1] as usize][0]);
+        d.merge(&vd[t[2] as usize][0]);
+        d.inflate(self.inflate);
+        d
+    }
+
+    /// A traversal found leaves `i` of `ga` and `j` of `gb` overlapping:
+    /// their triangles' stencils that pass the filter go to `out`.
+    #[inline]
+    fn found(&self, ga: &Group, i: u32, gb: &Group, j: u32, out: &mut TaskOut) {
+        let (i, j) = (i as usize, j as usize);
+        out.pairs += 1;
+        let (ta, tb) = (ga.members[i] as usize, gb.members[j] as usize);
+        self.stencils_of_pair(ta, tb, [&ga.leaves[i], &gb.leaves[j]], &mut out.keys);
+    }
+
+    /// Appends the stencils of [`stencils_of_pair`] between triangles `a` and
+    /// `b` (whose leaves are `leaves`) that pass [`primitives_overlap`] (same
+    /// answers, cheaper DOPs).
+    #[inline]
+    fn stencils_of_pair(&self, a: usize, b: usize, leaves: [&Dop26; 2], out: &mut Vec<StencilKey>) {
         let (ta, tb) = (self.triangles[a], self.triangles[b]);
         let vd = self.vertex_dops;
         let keep = |k: &StencilKey| {
@@ -391,7 +578,7 @@ impl Filter<'_> {
         }
         // The cheap necessary conditions (no shared vertex, DOPs overlap) first;
         // all are pure and conjunctive, so the order changes nothing.
-        for (tv, face, fd) in [(ta, tb, &self.tri_dops[b]), (tb, ta, &self.tri_dops[a])] {
+        for (tv, face, fd) in [(ta, tb, leaves[1]), (tb, ta, leaves[0])] {
             for &p in &tv {
                 if !face.contains(&p) && overlap(&vd[p as usize][1], fd) {
                     let k = StencilKey::vertex_face(p, face);

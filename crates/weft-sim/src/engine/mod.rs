@@ -164,9 +164,14 @@ impl<E: Executor> Engine<E> {
             // fetch what their tasks read.
             traj.hold_only(share.owner.clone(), share.rank as u32);
         }
+        let mut broad = BroadPhase::grouped(&world.partitioning.of_triangle);
+        if exec.ranks() > 1 {
+            // Each rank builds its partitions' trees and their neighbours'.
+            broad.spread(world.internal.home_ranks(exec.ranks()));
+        }
         let mut engine = Self {
             ws: Workspace::new(&world),
-            broad: BroadPhase::grouped(&world.partitioning.of_triangle),
+            broad,
             world,
             exec,
             traj,
