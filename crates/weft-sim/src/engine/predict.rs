@@ -158,7 +158,7 @@ impl<E: Executor> Engine<E> {
     /// synchronized at `world.tick`). The same on every rank: the broad
     /// phase gives every rank every candidate, and the decisions read only
     /// positions, velocities, scripts, internal forces and the layer set,
-    /// which every rank has in full.
+    /// which every rank has in full; each is made on one rank and gathered.
     pub(super) fn predict_layers(&mut self, resolved: u32) -> Result<Predicted, CommError> {
         let _span = trace::span("predict");
         // Made on first use: a run without prediction keeps no memory for it.
@@ -220,7 +220,11 @@ impl<E: Executor> Engine<E> {
             &predictor.traj,
             0.5 * w.schedule.eta_1,
         )?;
-        let deeper: Vec<bool> = self.exec.map(keys.len(), &|n| {
+        // Over ranks each candidate is decided on one rank (round robin:
+        // neighbouring keys cost alike) and every rank gets every answer.
+        let ranks = self.exec.ranks() as u32;
+        let owner: Vec<u32> = (0..keys.len() as u32).map(|n| n % ranks).collect();
+        let deeper: Vec<bool> = self.exec.map_on_ranks(keys.len(), &owner, &|n| {
             let key = &keys[n];
             let depth = w.layers.depth(key);
             let eta_next = w.schedule.eta(depth + 1);
@@ -234,7 +238,7 @@ impl<E: Executor> Engine<E> {
                 let x = key.v.map(|i| ahead(i as usize, k));
                 stencil_closest(key.kind, &x).d < eta_next
             })
-        });
+        })?;
         let extra = w.contact.layers_per_detection;
         let mut predicted = Predicted::default();
         for (key, deeper) in keys.iter().zip(deeper) {
