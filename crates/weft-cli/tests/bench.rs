@@ -193,6 +193,28 @@ fn missing_checkpoint_and_bad_options_are_errors() {
         (&["--windows", "0"], "--windows"),
         (&["--repeats", "0"], "--repeats"),
         (&["--make-checkpoint", "--warmup", "0"], "--warmup"),
+        (&["--project", "16"], "--project needs --ranks"),
+        (
+            &["--project", "16", "--ranks", "1,2"],
+            "--project needs --ranks",
+        ),
+        (
+            &["--project", "16", "--ranks", "1,2,4", "--threads", "2"],
+            "--threads 1",
+        ),
+        (
+            &[
+                "--project",
+                "16",
+                "--ranks",
+                "1,2,4",
+                "--threads",
+                "1",
+                "--bandwidth-gbs",
+                "0",
+            ],
+            "--bandwidth-gbs",
+        ),
     ];
     for (extra, want) in cases {
         let mut args = vec!["bench", c, "--size", "100"];
@@ -306,4 +328,72 @@ fn bench_over_ranks_reports_traffic_and_narrow_imbalance() {
     assert!(redundancy > 0.5 && bound < 3.5, "{redundancy} {bound}");
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(out.contains("critical path"), "{out}");
+}
+
+/// `--project`: the simulated ranks' steps replayed (each measured count)
+/// and the model's rank counts, labelled as a model; a slower network gives
+/// a slower projection.
+#[test]
+fn bench_projects_more_ranks_from_the_replayed_steps() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ck = small_checkpoint(tmp.path(), "150", "0.1");
+    let run = |bandwidth: &str| {
+        let extra = [
+            "--windows",
+            "2",
+            "--repeats",
+            "1",
+            "--threads",
+            "1",
+            "--ranks",
+            "1,2,3",
+            "--project",
+            "1,2,3,64",
+            "--bandwidth-gbs",
+            bandwidth,
+            "--json",
+        ];
+        let o = bench_from(tmp.path(), &scene("crumple.toml"), "150", &ck, &extra);
+        assert!(o.status.success(), "bench failed: {}", stderr(&o));
+        let out = String::from_utf8_lossy(&o.stdout).to_string();
+        assert!(out.contains("a model, not a measurement"), "{out}");
+        last_json(&o)["projection"].clone()
+    };
+    let fast = run("25");
+    let replayed = fast["replayed"].as_array().unwrap();
+    assert_eq!(replayed.len(), 2, "{fast}");
+    for r in replayed {
+        // (ranks, replay, counted critical path): the replay waits at every
+        // collective for the slowest rank, so it is never below the
+        // critical path's work by much.
+        let (replay, critical) = (r[1].as_f64().unwrap(), r[2].as_f64().unwrap());
+        assert!(replay > 0.0 && critical > 0.0, "{r}");
+        assert!(replay >= 0.9 * critical, "{r}");
+    }
+    let projected = fast["projected"].as_array().unwrap();
+    let ranks: Vec<u64> = projected
+        .iter()
+        .map(|p| p[0]["ranks"].as_u64().unwrap())
+        .collect();
+    assert_eq!(ranks, [1, 2, 3, 64]);
+    for p in projected {
+        let q = &p[0];
+        let sum = q["work"].as_f64().unwrap()
+            + q["collectives"].as_f64().unwrap()
+            + q["point_to_point"].as_f64().unwrap();
+        assert!((q["seconds"].as_f64().unwrap() - sum).abs() < 1e-12, "{q}");
+        assert!(p[1].as_f64().unwrap() > 0.0, "an efficiency: {p}");
+    }
+    assert_eq!(
+        projected[0][0]["collectives"], 0.0,
+        "one rank talks to no one"
+    );
+    let slow = run("0.01");
+    let at64 = |j: &serde_json::Value| j["projected"][3][0]["collectives"].as_f64().unwrap();
+    assert!(
+        at64(&slow) > at64(&fast),
+        "{} vs {}",
+        at64(&slow),
+        at64(&fast)
+    );
 }

@@ -21,4 +21,6 @@ pub use self::mpi::MpiTransport;
 pub use executor::{in_process, Ranks};
 pub use internal::run_ticks;
 pub use plan::{place_partitions, plan, RankPlan};
-pub use transport::{ChannelTransport, RankFailure, Traffic, TrafficCounter, Transport};
+pub use transport::{
+    ChannelTransport, RankFailure, StepSink, SyncStep, Traffic, TrafficCounter, Transport,
+};

@@ -17,7 +17,7 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{channel, Receiver, Sender};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 /// A rank that stopped answering (it failed, or its process is gone).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -156,6 +156,33 @@ impl<T: Transport + ?Sized> Transport for &T {
     }
 }
 
+/// One communication step of a rank, as a replay under a network model
+/// needs it (`weft bench --project`): the work before it and what it moved.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct SyncStep {
+    /// The rank's work (thread CPU, polling left out) since the start of
+    /// its previous step, in nanoseconds: what it computed before this step
+    /// could begin, including the work overlapped with the previous one.
+    pub work_ns: u64,
+    /// An all-gather (every rank takes part); else a point-to-point exchange.
+    pub collective: bool,
+    /// Collective: this rank's part, in bytes. Exchange: the bytes sent.
+    pub sent: Vec<(u32, u64)>,
+    /// Exchange: the bytes received, per peer, in the order received.
+    pub received: Vec<(u32, u64)>,
+}
+
+/// Where a rank's [`SyncStep`]s go while they are recorded.
+pub type StepSink = Arc<Mutex<Vec<SyncStep>>>;
+
+/// The recording of a rank's steps: the sink and the work at the start of
+/// the last step.
+#[derive(Debug)]
+struct StepLog {
+    sink: StepSink,
+    mark_ns: u64,
+}
+
 /// Where a rank receives one peer's messages.
 type Inbox = Mutex<Receiver<Vec<u8>>>;
 
@@ -172,6 +199,8 @@ pub struct ChannelTransport {
     /// of the k-th collective.
     from: Vec<Option<Inbox>>,
     sent: TrafficCounter,
+    /// The steps being recorded, if any ([`ChannelTransport::record_steps`]).
+    steps: Mutex<Option<StepLog>>,
 }
 
 impl ChannelTransport {
@@ -201,8 +230,39 @@ impl ChannelTransport {
                 to,
                 from,
                 sent: TrafficCounter::default(),
+                steps: Mutex::new(None),
             })
             .collect()
+    }
+
+    /// From now on, appends every collective and exchange of this rank to
+    /// `sink` as a [`SyncStep`] (the work is this thread's CPU: one thread
+    /// per rank).
+    pub fn record_steps(&self, sink: StepSink) {
+        let mark_ns = self.work_ns();
+        *self.steps.lock().expect("the step log") = Some(StepLog { sink, mark_ns });
+    }
+
+    /// This thread's CPU less the polling counted so far, in nanoseconds.
+    fn work_ns(&self) -> u64 {
+        let cpu = (weft_sim::cpu::thread_seconds() * 1e9) as u64;
+        cpu.saturating_sub(self.sent.total().wait_cpu_ns)
+    }
+
+    /// Records a step that begins now, if steps are recorded.
+    fn step(&self, collective: bool, sent: Vec<(u32, u64)>, received: Vec<(u32, u64)>) {
+        let mut log = self.steps.lock().expect("the step log");
+        if let Some(log) = log.as_mut() {
+            let now = self.work_ns();
+            let work_ns = now.saturating_sub(log.mark_ns);
+            log.mark_ns = now;
+            log.sink.lock().expect("the step sink").push(SyncStep {
+                work_ns,
+                collective,
+                sent,
+                received,
+            });
+        }
     }
 }
 
@@ -252,6 +312,11 @@ impl Transport for ChannelTransport {
 
     fn all_gather(&self, mine: Vec<u8>) -> Result<Vec<Vec<u8>>, RankFailure> {
         self.sent.collective();
+        self.step(
+            true,
+            vec![(self.rank as u32, mine.len() as u64)],
+            Vec::new(),
+        );
         for j in 0..self.size() {
             if j != self.rank {
                 self.send(j, mine.clone())?;
@@ -280,6 +345,15 @@ impl Transport for ChannelTransport {
         if !sends.is_empty() || !recvs.is_empty() {
             self.sent.exchange();
         }
+        self.step(
+            false,
+            (sends.iter())
+                .map(|(j, b)| (*j as u32, b.len() as u64))
+                .collect(),
+            (recvs.iter())
+                .map(|&(j, len)| (j as u32, len as u64))
+                .collect(),
+        );
         for (j, bytes) in sends {
             self.send(j, bytes)?;
         }

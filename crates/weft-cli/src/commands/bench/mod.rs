@@ -19,6 +19,7 @@
 //! balancer and as it would be with every task on its home rank.
 
 pub mod machine;
+pub mod project;
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -89,6 +90,22 @@ pub struct BenchArgs {
     /// run of the largest thread count.
     #[arg(long, value_name = "FILE")]
     pub trace: Option<PathBuf>,
+    /// Project the time per window to these rank counts (a model, not a
+    /// measurement: `bench/project.rs`): replays the simulated ranks'
+    /// communication steps of `--ranks` (1 and two or more counts above it,
+    /// `--threads 1`) under a LogGP network.
+    #[arg(long, value_name = "R,...", value_delimiter = ',')]
+    pub project: Vec<usize>,
+    /// The projection's network latency L, microseconds (the three network
+    /// defaults: an InfiniBand HDR cluster).
+    #[arg(long, value_name = "US", default_value_t = 1.0)]
+    pub latency_us: f64,
+    /// The projection's CPU overhead o per message, microseconds.
+    #[arg(long, value_name = "US", default_value_t = 0.3)]
+    pub overhead_us: f64,
+    /// The projection's bandwidth per rank, GB/s.
+    #[arg(long, value_name = "GB/S", default_value_t = 25.0)]
+    pub bandwidth_gbs: f64,
 }
 
 /// The totals of one run of `--windows` windows.
@@ -129,6 +146,9 @@ struct Sample {
     ranks: Vec<RankSample>,
     /// Measured narrow-phase seconds per rank, balanced and home-only.
     narrow_load: NarrowLoad,
+    /// Simulated ranks recording their steps (`--project`): each rank's
+    /// communication steps of the windows run.
+    steps: Vec<Vec<weft_par::ranks::SyncStep>>,
 }
 
 /// One rank's totals over a run.
@@ -295,6 +315,22 @@ pub struct BenchReport {
     pub peak_bytes_per_vertex: Option<f64>,
     pub machine: Topology,
     pub results: Vec<ThreadResult>,
+    /// `--project`: the modelled times per window.
+    pub projection: Option<ProjectionReport>,
+}
+
+/// What `--project` reports: a model, not a measurement.
+#[derive(Clone, Debug, Serialize)]
+pub struct ProjectionReport {
+    pub network: project::Network,
+    /// One process's work CPU per window (T1 of the efficiencies).
+    pub one_process_seconds_per_window: Option<f64>,
+    /// Each measured rank count: the replay of its steps (seconds per
+    /// window) and its counted critical path.
+    pub replayed: Vec<(usize, f64, f64)>,
+    /// Each asked rank count: the model's seconds per window (and its
+    /// parts), and T1 / (R · T(R)).
+    pub projected: Vec<(project::Projected, Option<f64>)>,
 }
 
 /// How the ranks of a bench run are made.
@@ -348,6 +384,30 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         bail!("--repeats must be at least 1");
     }
     let threads = thread_counts(&a.threads)?;
+    let projecting = !a.project.is_empty();
+    if projecting {
+        if mpi_ranks.is_some() {
+            bail!("--project replays ranks simulated in this process (--ranks), not MPI's");
+        }
+        if a.ranks.iter().filter(|&&r| r > 1).count() < 2 || !a.ranks.contains(&1) {
+            bail!("--project needs --ranks with 1 and two or more counts above 1, e.g. --ranks 1,2,4,8");
+        }
+        if threads != [1] {
+            bail!("--project needs --threads 1 (a rank's work is its thread's CPU)");
+        }
+        if a.project.contains(&0) {
+            bail!("--project: rank counts must be at least 1");
+        }
+        for (name, v) in [
+            ("--latency-us", a.latency_us),
+            ("--overhead-us", a.overhead_us),
+            ("--bandwidth-gbs", a.bandwidth_gbs),
+        ] {
+            if !(v.is_finite() && v >= 0.0) || (name == "--bandwidth-gbs" && v == 0.0) {
+                bail!("{name} must be a finite number above 0 (got {v})");
+            }
+        }
+    }
     let rank_list = match mpi_ranks {
         Some(_) if !a.ranks.is_empty() => {
             bail!("--ranks simulates ranks in one process; under mpirun the ranks are MPI's")
@@ -450,6 +510,7 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         peak_bytes_per_vertex: None,
         machine: Topology::this(),
         results: Vec::new(),
+        projection: None,
     };
     let say = |text: String| {
         if leader {
@@ -480,7 +541,7 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
                 let traced =
                     a.trace.is_some() && (Some(ranks), Some(n)) == last && r + 1 == a.repeats;
                 weft_sim::trace::set_recording(traced);
-                let s = run_once(launch, ranks, n, &world, &start, a.windows)
+                let s = run_once(launch, ranks, n, &world, &start, a.windows, projecting)
                     .with_context(|| format!("{ranks} rank(s) × {n} thread(s), run {}", r + 1))?;
                 say(format!(
                     "weft bench: {ranks} rank(s) × {n} thread(s), run {}/{}: {:.4} s per window",
@@ -504,6 +565,14 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         .peak_rss_bytes
         .map(|b| b as f64 / report.vertices as f64);
     summarize(&mut report, &all);
+    if projecting {
+        let net = project::Network {
+            latency: a.latency_us * 1e-6,
+            overhead: a.overhead_us * 1e-6,
+            seconds_per_byte: 1.0 / (a.bandwidth_gbs * 1e9),
+        };
+        report.projection = Some(projection(&report, &all, &a.project, net)?);
+    }
 
     print!("{}", table(&report));
     if a.json {
@@ -575,6 +644,7 @@ fn run_once(
     world: &World,
     start: &EngineState,
     windows: u64,
+    record_steps: bool,
 ) -> anyhow::Result<Sample> {
     let pool = || Threads::new(threads).context("cannot start the worker threads");
     match launch {
@@ -595,9 +665,18 @@ fn run_once(
                 |r| pools[r].clone(),
                 |exec| {
                     let (world, start) = (world.clone(), start.clone());
-                    exec.local()
-                        .clone()
-                        .install(move || measure(world, exec, start, windows))
+                    exec.local().clone().install(move || {
+                        // On the thread that runs the rank's work: its CPU
+                        // clock is the rank's.
+                        let sink = weft_par::ranks::StepSink::default();
+                        if record_steps {
+                            exec.transport().record_steps(sink.clone());
+                        }
+                        let mut s = measure(world, exec, start, windows)?;
+                        let steps = std::mem::take(&mut *sink.lock().expect("the step sink"));
+                        s.steps = vec![windows_steps(steps, s.own.collectives)];
+                        Ok(s)
+                    })
                 },
             );
             let mut samples = results.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
@@ -612,8 +691,10 @@ fn run_once(
                 );
             }
             let every: Vec<RankSample> = samples.iter().flat_map(|s| s.ranks.clone()).collect();
+            let steps: Vec<_> = samples.iter_mut().flat_map(|s| s.steps.drain(..)).collect();
             let mut first = samples.swap_remove(0);
             first.ranks = every;
+            first.steps = if record_steps { steps } else { Vec::new() };
             Ok(first)
         }
         #[cfg(feature = "mpi")]
@@ -635,6 +716,92 @@ fn run_once(
         #[cfg(not(feature = "mpi"))]
         Launch::Never(_) => unreachable!(),
     }
+}
+
+/// A rank's recorded steps less those before the windows ran (the engine's
+/// set-up and restore): all up to the collective that precedes the
+/// windows' `collectives`.
+fn windows_steps(
+    steps: Vec<weft_par::ranks::SyncStep>,
+    collectives: u64,
+) -> Vec<weft_par::ranks::SyncStep> {
+    let total = steps.iter().filter(|s| s.collective).count() as u64;
+    let mut before = total.saturating_sub(collectives);
+    let cut = steps
+        .iter()
+        .position(|s| {
+            if before == 0 {
+                return true;
+            }
+            if s.collective {
+                before -= 1;
+            }
+            false
+        })
+        .unwrap_or(steps.len());
+    steps[cut..].to_vec()
+}
+
+/// `--project`: replays each simulated rank count's steps (the median run's)
+/// and projects the asked rank counts from them.
+fn projection(
+    r: &BenchReport,
+    all: &[((usize, usize), Vec<Sample>)],
+    targets: &[usize],
+    net: project::Network,
+) -> anyhow::Result<ProjectionReport> {
+    let windows = r.windows as f64;
+    let mut measured = Vec::new();
+    let mut replayed = Vec::new();
+    for ((ranks, _), samples) in all.iter().filter(|((ranks, _), _)| *ranks > 1) {
+        let walls: Vec<f64> = samples.iter().map(|s| s.own.wall).collect();
+        let mid = median(&walls);
+        let s = samples
+            .iter()
+            .min_by(|a, b| {
+                (a.own.wall - mid)
+                    .abs()
+                    .total_cmp(&(b.own.wall - mid).abs())
+            })
+            .expect("a sample");
+        let seconds =
+            project::replay(&s.steps, &net).map_err(|e| anyhow::anyhow!("{ranks} ranks: {e}"))?;
+        let critical = r
+            .results
+            .iter()
+            .find(|t| t.ranks == *ranks)
+            .map_or(0.0, |t| t.critical_path_seconds_per_window);
+        replayed.push((*ranks, seconds / windows, critical));
+        let mut iv =
+            project::intervals(&s.steps).map_err(|e| anyhow::anyhow!("{ranks} ranks: {e}"))?;
+        for i in &mut iv {
+            i.work.iter_mut().for_each(|w| *w /= windows);
+        }
+        measured.push((*ranks, iv));
+    }
+    let t1 = r
+        .results
+        .iter()
+        .find(|t| t.ranks == 1)
+        .map(|t| t.cpu_sum_seconds_per_window);
+    let projected = project::project(&measured, targets, &net)
+        .map_err(|e| anyhow::anyhow!(e))?
+        .into_iter()
+        .map(|mut p| {
+            // The intervals hold a whole run's collectives: per window.
+            p.collectives /= windows;
+            p.point_to_point /= windows;
+            p.seconds = p.work + p.collectives + p.point_to_point;
+            let e = t1.map(|t1| t1 / (p.ranks as f64 * p.seconds));
+            (p, e)
+        })
+        .collect();
+    Ok(ProjectionReport {
+        network: net,
+        one_process_seconds_per_window: t1,
+        replayed,
+        projected,
+    })
 }
 
 /// The command line of this process, for a message that suggests a variant.
@@ -1145,6 +1312,41 @@ fn table(r: &BenchReport) -> String {
                 ms(k.cpu_polling_seconds_per_window),
                 k.peak_rss_bytes
                     .map_or("unknown".into(), |b| format!("{:.1} MB", b as f64 / 1e6)),
+            );
+        }
+    }
+    if let Some(p) = &r.projection {
+        let _ = writeln!(
+            s,
+            "\nprojection — a model, not a measurement (LogGP: L = {:.2} µs, o = {:.2} µs, \
+             {:.1} GB/s; bench/project.rs):",
+            p.network.latency * 1e6,
+            p.network.overhead * 1e6,
+            1e-9 / p.network.seconds_per_byte
+        );
+        for (ranks, replay, critical) in &p.replayed {
+            let _ = writeln!(
+                s,
+                "  replay of the {ranks} simulated ranks: {} ms per window (counted critical path {} ms)",
+                ms(*replay),
+                ms(*critical)
+            );
+        }
+        let _ = writeln!(
+            s,
+            "  ranks  ms/window  work  all-gathers  point-to-point  efficiency (T1 = {} ms)",
+            p.one_process_seconds_per_window.map_or("—".into(), ms)
+        );
+        for (q, e) in &p.projected {
+            let _ = writeln!(
+                s,
+                "  {:>5} {:>10} {:>5} {:>12} {:>15} {:>11}",
+                q.ranks,
+                ms(q.seconds),
+                ms(q.work),
+                ms(q.collectives),
+                ms(q.point_to_point),
+                e.map_or("—".into(), |e| format!("{:.0} %", 100.0 * e))
             );
         }
     }

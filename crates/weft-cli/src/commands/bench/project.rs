@@ -1,0 +1,418 @@
+//! `weft bench --ranks 1,2,4,… --project R,…`: the time per window on more
+//! ranks than this machine has cores, **projected** by a model, never read
+//! off the wall clock of oversubscribed runs.
+//!
+//! The simulated ranks of a counted run record every communication step
+//! ([`SyncStep`]: the rank's work CPU since its previous step, and the bytes
+//! the step moved). Two uses:
+//!
+//! * **Replay** ([`replay`]) of one measured run under a LogGP network: each
+//!   rank's clock advances by its measured work; an all-gather starts when
+//!   the last rank reaches it and takes `⌈log2 R⌉ (L + 2o) + G S (R-1)/R`
+//!   for `S` bytes in all; a point-to-point message leaves after the
+//!   sender's overhead `o` and arrives `L + G b` later, and the receiver
+//!   pays `o` (no overlap of work and messages is credited). So the replay
+//!   keeps the measured load imbalance between every two collectives, which
+//!   a per-window sum would average away.
+//! * **Projection** ([`project`]) to rank counts not measured: the engine's
+//!   collective schedule does not depend on the rank count, so the work of
+//!   the busiest rank between collectives `c - 1` and `c` is fitted per
+//!   interval as `W_c(R) = a_c + b_c / R` over the measured rank counts
+//!   (least squares, `a_c, b_c ≥ 0`: `a_c` is what every rank repeats, or
+//!   what one rank cannot share, `b_c` what is shared; the measured
+//!   imbalance is in the fit). Each interval's all-gather keeps its
+//!   measured total bytes; its point-to-point traffic keeps the largest
+//!   rank's message count and shrinks its bytes as a partition's boundary
+//!   does on a surface, `∝ (R_max / R)^(1/2)`.
+//!
+//! What the model leaves out: contention in the network, the work after a
+//! window's last collective, and any change of the schedule itself with R
+//! (more partitions per rank are not modelled).
+
+use serde::Serialize;
+use std::collections::{HashMap, VecDeque};
+use weft_par::ranks::SyncStep;
+
+/// A LogGP network: latency `L`, per-message CPU overhead `o`, and seconds
+/// per byte `G` (the inverse bandwidth), all in seconds.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Network {
+    pub latency: f64,
+    pub overhead: f64,
+    pub seconds_per_byte: f64,
+}
+
+impl Network {
+    /// One message of `bytes`: from the sender's call to the receiver's
+    /// completion.
+    fn message(&self, bytes: f64) -> f64 {
+        self.latency + 2.0 * self.overhead + self.seconds_per_byte * bytes
+    }
+
+    /// An all-gather of `total` bytes over `ranks` ranks (recursive doubling:
+    /// `⌈log2 R⌉` rounds; each rank receives all but its own part).
+    fn all_gather(&self, ranks: usize, total: f64) -> f64 {
+        if ranks <= 1 {
+            return 0.0;
+        }
+        let rounds = (ranks as f64).log2().ceil();
+        rounds * (self.latency + 2.0 * self.overhead)
+            + self.seconds_per_byte * total * (ranks - 1) as f64 / ranks as f64
+    }
+}
+
+/// Replays the ranks' steps (`steps[r]`: rank `r`'s, in order) under `net`;
+/// returns the simulated seconds until the last rank completes its last
+/// step. An error means the steps do not form one run (a collective some
+/// rank never reaches, a message never sent).
+pub fn replay(steps: &[Vec<SyncStep>], net: &Network) -> Result<f64, String> {
+    let n = steps.len();
+    let mut t = vec![0.0f64; n];
+    let mut at = vec![0usize; n];
+    // After an exchange's sends are posted: the sender's clock.
+    let mut posted: Vec<Option<f64>> = vec![None; n];
+    // Arrival times of the messages in flight, per (from, to).
+    let mut flight: HashMap<(u32, u32), VecDeque<f64>> = HashMap::new();
+    loop {
+        let mut progress = false;
+        for r in 0..n {
+            while let Some(s) = steps[r].get(at[r]) {
+                if s.collective {
+                    break;
+                }
+                let post = match posted[r] {
+                    Some(p) => p,
+                    None => {
+                        let mut p = t[r] + s.work_ns as f64 * 1e-9;
+                        for &(j, bytes) in &s.sent {
+                            p += net.overhead;
+                            let arrive = p + net.latency + net.seconds_per_byte * bytes as f64;
+                            flight.entry((r as u32, j)).or_default().push_back(arrive);
+                        }
+                        posted[r] = Some(p);
+                        progress = true;
+                        p
+                    }
+                };
+                let mut wanted: HashMap<u32, usize> = HashMap::new();
+                for &(j, _) in &s.received {
+                    *wanted.entry(j).or_default() += 1;
+                }
+                let ready = wanted
+                    .iter()
+                    .all(|(&j, &k)| flight.get(&(j, r as u32)).map_or(0, VecDeque::len) >= k);
+                if !ready {
+                    break;
+                }
+                let mut done = post;
+                for &(j, _) in &s.received {
+                    let queue = flight.get_mut(&(j, r as u32)).expect("checked above");
+                    let arrive = queue.pop_front().expect("checked above");
+                    done = done.max(arrive) + net.overhead;
+                }
+                t[r] = done;
+                posted[r] = None;
+                at[r] += 1;
+                progress = true;
+            }
+        }
+        if (0..n).all(|r| at[r] == steps[r].len()) {
+            return Ok(t.into_iter().fold(0.0, f64::max));
+        }
+        let gathering = (0..n).all(|r| steps[r].get(at[r]).is_some_and(|s| s.collective));
+        if gathering {
+            let mut start = 0.0f64;
+            let mut total = 0.0;
+            for r in 0..n {
+                let s = &steps[r][at[r]];
+                start = start.max(t[r] + s.work_ns as f64 * 1e-9);
+                total += s.sent.iter().map(|&(_, b)| b as f64).sum::<f64>();
+            }
+            let end = start + net.all_gather(n, total);
+            for r in 0..n {
+                t[r] = end;
+                at[r] += 1;
+            }
+            progress = true;
+        }
+        if !progress {
+            return Err(format!(
+                "the ranks' steps do not form one run (stuck at steps {at:?})"
+            ));
+        }
+    }
+}
+
+/// The work and traffic between two collectives, per rank.
+#[derive(Clone, Debug, Default)]
+pub struct Interval {
+    /// Each rank's work in the interval, seconds (up to and including the
+    /// work before the collective that ends it).
+    pub work: Vec<f64>,
+    /// The bytes the ending all-gather moves in all.
+    pub gathered: f64,
+    /// The point-to-point messages and bytes of the busiest rank (sent and
+    /// received).
+    pub messages: f64,
+    pub bytes: f64,
+}
+
+/// The ranks' steps cut at their collectives (every rank must have the same
+/// number); point-to-point steps after the last collective are left out.
+pub fn intervals(steps: &[Vec<SyncStep>]) -> Result<Vec<Interval>, String> {
+    let n = steps.len();
+    let count = |s: &Vec<SyncStep>| s.iter().filter(|s| s.collective).count();
+    let c = steps.first().map_or(0, count);
+    if steps.iter().any(|s| count(s) != c) {
+        return Err("the ranks took part in different numbers of collectives".into());
+    }
+    let mut out = vec![
+        Interval {
+            work: vec![0.0; n],
+            ..Interval::default()
+        };
+        c
+    ];
+    let mut traffic = vec![vec![(0.0f64, 0.0f64); n]; c];
+    for (r, rank) in steps.iter().enumerate() {
+        let mut k = 0;
+        for s in rank {
+            if k == c {
+                break;
+            }
+            out[k].work[r] += s.work_ns as f64 * 1e-9;
+            if s.collective {
+                out[k].gathered += s.sent.iter().map(|&(_, b)| b as f64).sum::<f64>();
+                k += 1;
+            } else {
+                let moved = s.sent.iter().chain(&s.received);
+                for &(_, b) in moved {
+                    traffic[k][r].0 += 1.0;
+                    traffic[k][r].1 += b as f64;
+                }
+            }
+        }
+    }
+    for (i, t) in out.iter_mut().zip(traffic) {
+        let busiest =
+            (t.iter().copied()).fold((0.0f64, 0.0f64), |a, b| (a.0.max(b.0), a.1.max(b.1)));
+        (i.messages, i.bytes) = busiest;
+    }
+    Ok(out)
+}
+
+/// `y ≈ a + b x` by least squares with `a, b ≥ 0`.
+fn fit_nonnegative(points: &[(f64, f64)]) -> (f64, f64) {
+    let k = points.len() as f64;
+    let (sx, sy) = points
+        .iter()
+        .fold((0.0, 0.0), |s, p| (s.0 + p.0, s.1 + p.1));
+    let (mx, my) = (sx / k, sy / k);
+    let sxx: f64 = points.iter().map(|p| (p.0 - mx) * (p.0 - mx)).sum();
+    let sxy: f64 = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    let a = my - b * mx;
+    if b < 0.0 {
+        return (my.max(0.0), 0.0);
+    }
+    if a < 0.0 {
+        let sxx0: f64 = points.iter().map(|p| p.0 * p.0).sum();
+        let sxy0: f64 = points.iter().map(|p| p.0 * p.1).sum();
+        return (
+            0.0,
+            if sxx0 > 0.0 {
+                (sxy0 / sxx0).max(0.0)
+            } else {
+                0.0
+            },
+        );
+    }
+    (a, b)
+}
+
+/// One projected rank count.
+#[derive(Clone, Debug, Serialize)]
+pub struct Projected {
+    pub ranks: usize,
+    /// Seconds of the modelled run: the critical work, the all-gathers and
+    /// the point-to-point messages.
+    pub seconds: f64,
+    pub work: f64,
+    pub collectives: f64,
+    pub point_to_point: f64,
+}
+
+/// The modelled time of `targets` rank counts from the intervals of the
+/// measured counts (`measured`: rank count and its intervals; at least two
+/// counts, the same collective schedule).
+pub fn project(
+    measured: &[(usize, Vec<Interval>)],
+    targets: &[usize],
+    net: &Network,
+) -> Result<Vec<Projected>, String> {
+    if measured.len() < 2 {
+        return Err("the projection needs two or more measured rank counts above 1".into());
+    }
+    let c = measured[0].1.len();
+    if measured.iter().any(|m| m.1.len() != c) {
+        return Err(format!(
+            "the collective schedule differs between the measured rank counts ({})",
+            measured
+                .iter()
+                .map(|m| format!("{} ranks: {} collectives", m.0, m.1.len()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
+    let (largest, at_largest) = measured
+        .iter()
+        .max_by_key(|m| m.0)
+        .map(|m| (m.0, &m.1))
+        .expect("two or more");
+    let busiest = |w: &[f64]| w.iter().copied().fold(0.0, f64::max);
+    let model: Vec<(f64, f64)> = (0..c)
+        .map(|k| {
+            let points: Vec<(f64, f64)> = (measured.iter())
+                .map(|(r, iv)| (1.0 / *r as f64, busiest(&iv[k].work)))
+                .collect();
+            fit_nonnegative(&points)
+        })
+        .collect();
+    Ok(targets
+        .iter()
+        .map(|&r| {
+            let (mut work, mut gather, mut p2p) = (0.0, 0.0, 0.0);
+            for (k, &(a, b)) in model.iter().enumerate() {
+                let iv = &at_largest[k];
+                work += a + b / r as f64;
+                gather += net.all_gather(r, iv.gathered);
+                if r > 1 && iv.messages > 0.0 {
+                    let shrink = (largest as f64 / r as f64).sqrt();
+                    let per = iv.bytes * shrink / iv.messages;
+                    p2p += iv.messages * net.message(per);
+                }
+            }
+            Projected {
+                ranks: r,
+                seconds: work + gather + p2p,
+                work,
+                collectives: gather,
+                point_to_point: p2p,
+            }
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn step(
+        work_us: u64,
+        collective: bool,
+        sent: &[(u32, u64)],
+        received: &[(u32, u64)],
+    ) -> SyncStep {
+        SyncStep {
+            work_ns: work_us * 1000,
+            collective,
+            sent: sent.to_vec(),
+            received: received.to_vec(),
+        }
+    }
+
+    const NET: Network = Network {
+        latency: 1e-6,
+        overhead: 0.5e-6,
+        seconds_per_byte: 1e-9,
+    };
+
+    #[test]
+    fn a_collective_waits_for_the_slowest_rank() {
+        // 10 µs and 30 µs of work, then an all-gather of 100 + 100 bytes.
+        let steps = vec![
+            vec![step(10, true, &[(0, 100)], &[])],
+            vec![step(30, true, &[(1, 100)], &[])],
+        ];
+        let t = replay(&steps, &NET).unwrap();
+        let expected = 30e-6 + (1e-6 + 1e-6) + 1e-9 * 200.0 / 2.0;
+        assert!((t - expected).abs() < 1e-12, "{t} vs {expected}");
+    }
+
+    #[test]
+    fn a_message_arrives_after_its_sender_sent_it() {
+        // Rank 0 works 50 µs and sends 1000 bytes; rank 1 works 5 µs and
+        // waits for them; then both gather nothing.
+        let steps = vec![
+            vec![
+                step(50, false, &[(1, 1000)], &[]),
+                step(0, true, &[(0, 0)], &[]),
+            ],
+            vec![
+                step(5, false, &[], &[(0, 1000)]),
+                step(0, true, &[(1, 0)], &[]),
+            ],
+        ];
+        let t = replay(&steps, &NET).unwrap();
+        let arrive = 50e-6 + 0.5e-6 + 1e-6 + 1e-6;
+        let expected = arrive + 0.5e-6 + (1e-6 + 1e-6);
+        assert!((t - expected).abs() < 1e-12, "{t} vs {expected}");
+    }
+
+    #[test]
+    fn mismatched_steps_are_an_error() {
+        let steps = vec![
+            vec![step(1, true, &[(0, 1)], &[])],
+            vec![step(1, false, &[], &[(0, 8)])],
+        ];
+        assert!(replay(&steps, &NET).is_err());
+        assert!(intervals(&steps).is_err());
+    }
+
+    #[test]
+    fn the_fit_separates_repeated_from_shared_work() {
+        // mean work 2 + 8 / R at R = 2, 4, 8: a = 2, b = 8.
+        let (a, b) = fit_nonnegative(&[(0.5, 6.0), (0.25, 4.0), (0.125, 3.0)]);
+        assert!(
+            (a - 2.0).abs() < 1e-12 && (b - 8.0).abs() < 1e-12,
+            "{a} {b}"
+        );
+        // Work that grows with R is all repeated: b clamps to 0.
+        let (a, b) = fit_nonnegative(&[(0.5, 1.0), (0.25, 2.0)]);
+        assert_eq!((a, b), (1.5, 0.0));
+    }
+
+    #[test]
+    fn projection_reproduces_a_schedule_that_follows_the_model() {
+        // Two intervals whose per-rank work is 1 + 6 / R ms (rank 0:
+        // 1 + 9 / R, the busiest) and 3 / R ms; measured at 2 and 4 ranks.
+        let make = |r: usize| {
+            let steps: Vec<Vec<SyncStep>> = (0..r)
+                .map(|q| {
+                    vec![
+                        step(
+                            (1000.0 + (if q == 0 { 9000.0 } else { 6000.0 }) / r as f64) as u64,
+                            true,
+                            &[(q as u32, 40 / r as u64)],
+                            &[],
+                        ),
+                        step(
+                            (3000.0 / r as f64) as u64,
+                            true,
+                            &[(q as u32, 40 / r as u64)],
+                            &[],
+                        ),
+                    ]
+                })
+                .collect();
+            (r, intervals(&steps).unwrap(), replay(&steps, &NET).unwrap())
+        };
+        let (m2, m4) = (make(2), make(4));
+        let p = project(&[(2, m2.1), (4, m4.1)], &[2, 4, 64], &NET).unwrap();
+        assert!((p[0].seconds - m2.2).abs() < 1e-9, "{:?} vs {}", p[0], m2.2);
+        assert!((p[1].seconds - m4.2).abs() < 1e-9, "{:?} vs {}", p[1], m4.2);
+        let work64 = 1e-3 + 12e-3 / 64.0;
+        assert!((p[2].work - work64).abs() < 1e-9, "{:?}", p[2]);
+        assert!(p[2].collectives > p[1].collectives);
+    }
+}
