@@ -55,6 +55,11 @@
 //! edge's the union of its two inflated vertex DOPs. If some vertex DOP is empty
 //! (non-finite positions) the filter falls back to [`primitives_overlap`].
 //!
+//! Over ranks with the groups placed ([`BroadPhase::spread`]), each rank
+//! builds only its own groups' trees, the window hulls are all-gathered,
+//! and each traversal runs whole on one rank, which builds the other side's
+//! tree too (`spread_candidates`).
+//!
 //! Which task finds a pair, and in which order tasks run, changes nothing: the
 //! result is the sorted set of keys, the same on every executor, for every
 //! grouping, and as a serial pass.
@@ -178,8 +183,10 @@ impl BroadPhase {
     ///
     /// The vertex DOPs (each on the rank holding the vertex's breakpoints)
     /// and the traversal tasks (round robin) are spread over the ranks
-    /// ([`Executor::map_on_ranks`]); the triangle DOPs, the trees and the voxel grid are computed on
-    /// every rank.
+    /// ([`Executor::map_on_ranks`]); the triangle DOPs, the trees and the
+    /// voxel grid are computed on every rank, unless the groups were given
+    /// ranks ([`BroadPhase::spread`]): then a rank builds only its groups'
+    /// trees and those its traversals pair with them.
     ///
     /// # Panics
     /// If the workspace was [`grouped`](BroadPhase::grouped) with a label
