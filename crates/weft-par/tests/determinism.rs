@@ -184,3 +184,39 @@ fn prediction_changes_the_layers_not_the_motion() {
         off.rollbacks
     );
 }
+
+/// A twister (a scripted rod, the sleeve's ends pinned to scripts: vertices
+/// the internal stencils read but that fold nothing) over 1, 3 and 4 ranks:
+/// the same state hash after its first windows. A rank keeps current only
+/// the vertices it owns and those others read (`share::PassShare`); a
+/// kinematic vertex a partition reads off its owner must be among them.
+#[test]
+fn twister_over_ranks_keeps_the_vertices_each_rank_reads() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/twister.toml");
+    let scene = load_scene(
+        &path,
+        &[
+            "size=600".into(),
+            "time.steps_per_window=20".into(),
+            "partitions=12".into(),
+        ],
+    )
+    .unwrap();
+    let reference = twister_hash(&scene, Serial);
+    for ranks in [3, 4] {
+        let hashes = in_process(ranks, |_| Serial, |exec| twister_hash(&scene, exec));
+        for (rank, hash) in hashes.iter().enumerate() {
+            assert_eq!(hash, &reference, "rank {rank} of {ranks}");
+        }
+    }
+}
+
+/// The state hash of `scene` after 4 windows on `exec`.
+fn twister_hash<E: Executor>(scene: &weft_io::scene::Scene, exec: E) -> String {
+    let world = weft_par::build_world(&scene.world).unwrap();
+    let mut e = Engine::new(world, exec).unwrap();
+    for _ in 0..4 {
+        e.step_window().unwrap();
+    }
+    e.state_hash()
+}

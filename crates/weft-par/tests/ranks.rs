@@ -178,6 +178,42 @@ fn rank_shares_mirror_and_cover_every_fold() {
                         );
                     }
                 }
+                // Every vertex a partition evaluated here reads (the
+                // vertices folding its slots) is kept current here: owned
+                // or shared; and a pass's island off its vertex's owner
+                // makes that vertex shared (advanced on every rank).
+                let pass = share.pass([(0u32, ((share.owner[0] + 1) % ranks as u32))]);
+                let inf = &w.internal;
+                for (p, part) in inf.partitions.iter().enumerate() {
+                    if !(share.boundary_partition[p] || share.interior_partition[p]) {
+                        continue;
+                    }
+                    let reads = (part.stretch.clone())
+                        .flat_map(|s| inf.stretch[s].verts.to_vec())
+                        .chain(
+                            part.hinges
+                                .clone()
+                                .flat_map(|h| inf.hinges[h].verts.to_vec()),
+                        );
+                    for i in reads {
+                        assert!(
+                            pass.live[i as usize],
+                            "{ctx}: partition {p} reads vertex {i}"
+                        );
+                    }
+                }
+                assert_eq!(
+                    pass.shared_owned[share.owner[0] as usize].contains(&0),
+                    ranks > 1,
+                    "{ctx}: an island off vertex 0's owner"
+                );
+                // Live here: owned, or read here by a partition or the
+                // island (never more).
+                let island_rank = (share.owner[0] + 1) % ranks as u32;
+                for i in 0..w.num_vertices() {
+                    let read = share.read_here[i] || (i == 0 && island_rank == r as u32);
+                    assert_eq!(pass.live[i], share.owns(i) || read, "{ctx}: vertex {i}");
+                }
                 // each partition is evaluated on exactly one rank
                 for p in 0..partitions {
                     let evaluated = shares

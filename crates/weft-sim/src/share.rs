@@ -13,9 +13,17 @@
 //!    the neighbour owns folds. The *boundary* partitions (those computing
 //!    such a slot) are evaluated first, their slots sent, and the *interior*
 //!    partitions evaluated while the messages travel;
-//! 2. **new velocities** of the owned vertices, to every rank (a
-//!    collective), so every rank can apply the tick to every vertex
-//!    (positions, trajectories) as on one memory.
+//! 2. **new velocities** of the owned vertices that another rank reads (a
+//!    collective): the *shared* vertices, those an internal stencil reads
+//!    off its vertex's owner (the boundary) and those of contact islands
+//!    placed off their owner ([`PassShare`]). A rank advances its own and
+//!    the shared vertices at each internal tick; every other vertex it
+//!    leaves as it was until the pass ends, when each rank hands every
+//!    other its owned vertices' states (one collective per pass), so every
+//!    rank holds every vertex's state again for the stages after the pass.
+//!
+//! Each rank's first vertex whose new state is not finite travels with its
+//! velocities, so every rank stops the tick at the same vertex.
 //!
 //! Each value is computed once, by its owner, and copied with its exact
 //! bits; every fold reads the same slots in the same key order as on one
@@ -53,6 +61,23 @@ pub struct RankShare {
     pub recv_slots: Vec<(usize, Vec<u32>)>,
     /// Per rank: the vertices it owns (ascending).
     pub owned: Vec<Vec<u32>>,
+    /// Per vertex: an internal stencil of a partition placed off its owner
+    /// reads it.
+    pub boundary: Vec<bool>,
+    /// Per vertex: an internal stencil of a partition placed on this rank
+    /// reads it.
+    pub read_here: Vec<bool>,
+}
+
+/// What a rank keeps current through one pass's internal ticks.
+#[derive(Clone, Debug, Default)]
+pub struct PassShare {
+    /// Per vertex: advanced on this rank at every internal tick (owned
+    /// here, or read here: by a partition or an island placed here).
+    pub live: Vec<bool>,
+    /// Per rank: the shared vertices it owns (ascending), whose new
+    /// velocities it hands every rank at each internal tick.
+    pub shared_owned: Vec<Vec<u32>>,
 }
 
 impl RankShare {
@@ -86,6 +111,23 @@ impl RankShare {
                 }
             }
         }
+        // What an element reads: its vertices, kinematic ones too (those
+        // fold no slot).
+        let mut boundary = vec![false; n];
+        let mut read_here = vec![false; n];
+        for (p, part) in internal.partitions.iter().enumerate() {
+            let reads = (part.stretch.clone())
+                .flat_map(|s| internal.stretch[s].verts.to_vec())
+                .chain((part.hinges.clone()).flat_map(|h| internal.hinges[h].verts.to_vec()));
+            for i in reads {
+                if owner[i as usize] != home[p] {
+                    boundary[i as usize] = true;
+                }
+                if home[p] as usize == rank {
+                    read_here[i as usize] = true;
+                }
+            }
+        }
         let mut boundary_partition = vec![false; home.len()];
         let mut send_slots = Vec::new();
         let mut recv_slots = Vec::new();
@@ -115,7 +157,34 @@ impl RankShare {
             send_slots,
             recv_slots,
             owned,
+            boundary,
+            read_here,
         }
+    }
+
+    /// The share of a pass whose contact islands read the vertices
+    /// `island_reads` (vertex, the rank its island runs on): the boundary
+    /// vertices and those an island reads off their owner are shared; this
+    /// rank keeps current those it owns or reads.
+    pub fn pass(&self, island_reads: impl IntoIterator<Item = (u32, u32)>) -> PassShare {
+        let mut shared = self.boundary.clone();
+        let mut live = self.read_here.clone();
+        for (i, r) in island_reads {
+            if self.owner[i as usize] != r {
+                shared[i as usize] = true;
+            }
+            if r as usize == self.rank {
+                live[i as usize] = true;
+            }
+        }
+        for (i, l) in live.iter_mut().enumerate() {
+            *l |= self.owns(i);
+        }
+        let mut shared_owned = vec![Vec::new(); self.ranks];
+        for (i, _) in shared.iter().enumerate().filter(|s| *s.1) {
+            shared_owned[self.owner[i] as usize].push(i as u32);
+        }
+        PassShare { live, shared_owned }
     }
 
     /// Whether vertex `i` is folded and advanced on this rank.
@@ -156,19 +225,125 @@ impl RankShare {
         Ok(())
     }
 
-    /// **Collective.** Hands every rank the new velocities of the vertices
-    /// the others own (exchange 2).
+    /// **Collective.** Hands every rank the new velocities of the shared
+    /// vertices the others own, and agrees on the first vertex whose new
+    /// state is not finite and on how many vertices before it change
+    /// velocity (exchange 2). `bad` is this rank's first among the vertices
+    /// it owns, `changed` how many it owns before it change velocity, and
+    /// `changed_below(v_new, b)` how many it owns before `b` change velocity (asked
+    /// only when another rank's `bad` comes first: one more collective, in
+    /// a pass that is about to end). Returns the first `bad` over all ranks
+    /// and the vertices before it that change velocity, over all ranks.
     pub fn exchange_velocities<E: Executor>(
         &self,
         exec: &E,
+        pass: &PassShare,
         v_new: &mut [DVec3],
+        (bad, changed): (Option<usize>, usize),
+        changed_below: &dyn Fn(&[DVec3], usize) -> usize,
+    ) -> Result<(Option<usize>, usize), CommError> {
+        let lists = &pass.shared_owned;
+        // The first entry carries `bad` as the bits of its x (none: all
+        // ones) and `changed` as the bits of its y.
+        let flag = bad.map_or(u64::MAX, |b| b as u64);
+        let mut mine = Vec::with_capacity(1 + lists[self.rank].len());
+        mine.push(DVec3::new(
+            f64::from_bits(flag),
+            f64::from_bits(changed as u64),
+            0.0,
+        ));
+        mine.extend(lists[self.rank].iter().map(|&k| v_new[k as usize]));
+        let all = self.gathered(exec.all_gather_vectors(&mine)?)?;
+        let mut first = bad;
+        let mut counts = Vec::with_capacity(self.ranks);
+        for (j, values) in all.into_iter().enumerate() {
+            if values.len() != 1 + lists[j].len() {
+                return Err(CommError(format!(
+                    "rank {}: rank {j} sent {} values for {}",
+                    self.rank,
+                    values.len(),
+                    1 + lists[j].len()
+                )));
+            }
+            let theirs = values[0].x.to_bits();
+            counts.push((theirs, values[0].y.to_bits() as usize));
+            if theirs != u64::MAX {
+                first = Some(first.map_or(theirs as usize, |f| f.min(theirs as usize)));
+            }
+            if j != self.rank {
+                for (&k, value) in lists[j].iter().zip(&values[1..]) {
+                    v_new[k as usize] = *value;
+                }
+            }
+        }
+        let Some(b) = first else {
+            return Ok((None, counts.iter().map(|c| c.1).sum()));
+        };
+        // Each rank counted up to its own first non-finite vertex; count
+        // again up to the first of all (its rank's count stands).
+        let mine = if counts[self.rank].0 == b as u64 {
+            changed
+        } else {
+            changed_below(v_new, b)
+        };
+        let mine = [DVec3::new(f64::from_bits(mine as u64), 0.0, 0.0)];
+        let all = self.gathered(exec.all_gather_vectors(&mine)?)?;
+        let below = all
+            .iter()
+            .map(|v| v.first().map_or(0, |c| c.x.to_bits() as usize));
+        Ok((first, below.sum()))
+    }
+
+    /// **Collective.** Hands every rank the states of the vertices the
+    /// others own (at the end of a pass: what the ranks did not keep
+    /// current), with their exact bits.
+    pub fn gather_states<E: Executor>(
+        &self,
+        exec: &E,
+        x: &mut [DVec3],
+        v: &mut [DVec3],
+        tau: &mut [crate::clock::Tick],
+        traj: &mut crate::trajectory::Trajectories,
     ) -> Result<(), CommError> {
         let lists = &self.owned;
-        let mine: Vec<DVec3> = lists[self.rank]
-            .iter()
-            .map(|&k| v_new[k as usize])
+        // Per vertex: x, v, and tau, the breakpoint count and the last
+        // breakpoint's time as the bits of the third entry.
+        let mine: Vec<DVec3> = (lists[self.rank].iter())
+            .flat_map(|&k| {
+                let k = k as usize;
+                let (count, last) = traj.tally(k);
+                let bits = f64::from_bits;
+                [
+                    x[k],
+                    v[k],
+                    DVec3::new(bits(tau[k]), bits(count.into()), last),
+                ]
+            })
             .collect();
-        let all = exec.all_gather_vectors(&mine)?;
+        let all = self.gathered(exec.all_gather_vectors(&mine)?)?;
+        for (j, values) in all.into_iter().enumerate() {
+            if j == self.rank {
+                continue;
+            }
+            if values.len() != 3 * lists[j].len() {
+                return Err(CommError(format!(
+                    "rank {}: rank {j} sent {} values for {} states",
+                    self.rank,
+                    values.len(),
+                    lists[j].len()
+                )));
+            }
+            for (&k, c) in lists[j].iter().zip(values.chunks_exact(3)) {
+                let k = k as usize;
+                (x[k], v[k], tau[k]) = (c[0], c[1], c[2].x.to_bits());
+                traj.set_tally(k, (c[2].y.to_bits() as u32, c[2].z));
+            }
+        }
+        Ok(())
+    }
+
+    /// The parts of an all-gather, checked one per rank.
+    fn gathered(&self, all: Vec<Vec<DVec3>>) -> Result<Vec<Vec<DVec3>>, CommError> {
         if all.len() != self.ranks {
             return Err(CommError(format!(
                 "rank {}: an exchange brought {} parts for {} ranks",
@@ -177,22 +352,6 @@ impl RankShare {
                 self.ranks
             )));
         }
-        for (j, values) in all.into_iter().enumerate() {
-            if j == self.rank {
-                continue;
-            }
-            if values.len() != lists[j].len() {
-                return Err(CommError(format!(
-                    "rank {}: rank {j} sent {} values for {}",
-                    self.rank,
-                    values.len(),
-                    lists[j].len()
-                )));
-            }
-            for (&k, value) in lists[j].iter().zip(values) {
-                v_new[k as usize] = value;
-            }
-        }
-        Ok(())
+        Ok(all)
     }
 }

@@ -604,6 +604,18 @@ impl Trajectories {
         self.start
     }
 
+    /// Vertex `i`'s breakpoint count and the relative time of its last one
+    /// (what every rank keeps of every vertex).
+    pub fn tally(&self, i: usize) -> (u32, f64) {
+        (self.count[i], self.last[i])
+    }
+
+    /// Sets vertex `i`'s tally to its owner's (over ranks, at the end of a
+    /// pass in which this rank did not follow the vertex).
+    pub fn set_tally(&mut self, i: usize, (count, last): (u32, f64)) {
+        (self.count[i], self.last[i]) = (count, last);
+    }
+
     /// Breakpoints this window (the start points included), of every vertex
     /// — held here or not.
     pub fn breakpoints(&self) -> usize {

@@ -1,9 +1,10 @@
 //! The `Ranks` executor: one rank of a run spread over ranks that share no
 //! memory, talking only through a [`Transport`].
 //!
-//! Every rank holds every vertex's position and velocity (trajectory
-//! breakpoints only for the vertices it owns) and runs the engine's control
-//! flow; the heavy stages are spread: a rank evaluates the internal forces of
+//! Between passes every rank holds every vertex's position and velocity
+//! (trajectory breakpoints only for the vertices it owns; within a pass it
+//! keeps current only the vertices it owns or reads, `weft_sim::share`) and
+//! runs the engine's control flow; the heavy stages are spread: a rank evaluates the internal forces of
 //! the partitions placed on it, the penalty closest points and kicks of its
 //! block of awake stencils, the broad phase's DOPs of the vertices it holds
 //! and its round-robin share of the traversal tasks, the narrow-phase tasks

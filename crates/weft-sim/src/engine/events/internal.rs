@@ -35,15 +35,22 @@ impl<E: Executor> Engine<E> {
         let ws = &mut self.ws;
         // Per-vertex stages run on the executor in fixed runs of vertices;
         // each writes only its own vertices' entries.
+        // Over ranks only the live vertices (owned here, or shared) are
+        // advanced; the others stay as they were until the pass ends.
+        let share = self.share.as_ref();
+        let live = share.map(|_| &ws.pass_share.live[..]);
+        let is_live = |i: usize| live.is_none_or(|l| l[i]);
         let positions = trace::span("tick positions");
         self.exec
             .for_each_chunk(&mut ws.xt, &ws.vertex_runs, &|k, run| {
                 for (j, p) in run.iter_mut().enumerate() {
-                    *p = Self::pos_at(w, k * VERTEX_RUN + j, t);
+                    let i = k * VERTEX_RUN + j;
+                    if is_live(i) {
+                        *p = Self::pos_at(w, i, t);
+                    }
                 }
             });
         drop(positions);
-        let share = self.share.as_ref();
         let (exec, bounds, xt) = (&self.exec, &ws.bounds, &ws.xt);
         match share {
             None => w
@@ -61,10 +68,10 @@ impl<E: Executor> Engine<E> {
         }
         // One pass per run of vertices: the ordered fold of the internal
         // slots, then the islands' kicks at `t` (bucketed by run, each
-        // vertex's in island order), then the new velocity; on one memory
-        // also the first vertex whose new state is not finite. Over ranks
-        // each rank advances the vertices it owns and the new velocities are
-        // all-gathered.
+        // vertex's in island order), then the new velocity, and the first
+        // vertex whose new state is not finite. Over ranks each rank does
+        // this for the vertices it owns, and hands the shared ones' new
+        // velocities and its first non-finite vertex to every rank.
         let velocities = trace::span("tick velocities");
         let h = w.lattice.h_el();
         let tsec = w.lattice.seconds(t);
@@ -77,6 +84,8 @@ impl<E: Executor> Engine<E> {
             acc: &'a mut [DVec3],
             v_new: &'a mut [DVec3],
             bad: Option<usize>,
+            /// Owned vertices before `bad` whose velocity changes.
+            changed: usize,
         }
         let mut v_runs = split_chunks(&mut ws.v_new, runs).into_iter();
         let mut fused: Vec<Run<'_>> = split_chunks(&mut ws.acc, runs)
@@ -85,6 +94,7 @@ impl<E: Executor> Engine<E> {
                 acc,
                 v_new: v_runs.next().expect("one per run").1,
                 bad: None,
+                changed: 0,
             })
             .collect();
         let (out, xt, kicks) = (&ws.out, &ws.xt, &ws.kicks_by_run);
@@ -106,49 +116,66 @@ impl<E: Executor> Engine<E> {
                     *v = new_velocity(w, i, xt[i], r.acc[j], tsec, h);
                 }
             }
-            if share.is_none() {
-                r.bad = (0..r.v_new.len())
-                    .find(|&j| blows_up(w, start + j, xt, r.v_new[j]))
-                    .map(|j| start + j);
+            r.bad = (0..r.v_new.len())
+                .find(|&j| owned(start + j) && blows_up(w, start + j, xt, r.v_new[j]))
+                .map(|j| start + j);
+            if share.is_some() {
+                let end = r.bad.map_or(r.v_new.len(), |b| b - start);
+                r.changed = (0..end)
+                    .filter(|&j| owned(start + j) && r.v_new[j] != w.v[start + j])
+                    .count();
             }
         });
         let bad = fused.iter().find_map(|r| r.bad);
+        // Before the first non-finite vertex only.
+        let changed = (fused.iter())
+            .take_while(|r| r.bad.is_none())
+            .chain(fused.iter().find(|r| r.bad.is_some()))
+            .map(|r| r.changed)
+            .sum();
         drop(fused);
         drop(velocities);
         counts.internal_seconds += clock.elapsed().as_secs_f64();
-        let bad = match share {
-            None => bad,
+        let (bad, recorded) = match share {
+            None => (bad, None),
             Some(share) => {
-                share.exchange_velocities(&self.exec, &mut ws.v_new)?;
-                self.first_not_finite()
+                let below = |v_new: &[DVec3], b: usize| {
+                    (share.owned[share.rank].iter())
+                        .map(|&i| i as usize)
+                        .take_while(|&i| i < b)
+                        .filter(|&i| v_new[i] != w.v[i])
+                        .count()
+                };
+                let (bad, changed) = share.exchange_velocities(
+                    &self.exec,
+                    &ws.pass_share,
+                    &mut ws.v_new,
+                    (bad, changed),
+                    &below,
+                )?;
+                // Every vertex that changes velocity gets a breakpoint, but
+                // none at the window start, where each has one already.
+                let at_start = t == self.traj.start();
+                (bad, Some(if at_start { 0 } else { changed }))
             }
         };
-        self.apply_internal(t, bad)
-    }
-
-    /// The first vertex (in vertex order) whose velocity changes to a
-    /// non-finite state at this internal tick, over every vertex (over ranks,
-    /// after the new velocities are all-gathered).
-    fn first_not_finite(&self) -> Option<usize> {
-        let (w, ws) = (&self.world, &self.ws);
-        let (xt, v_new, bounds) = (&ws.xt, &ws.v_new, &ws.vertex_runs);
-        let runs = bounds.len().saturating_sub(1);
-        self.exec
-            .map(runs, &|k| {
-                (bounds[k]..bounds[k + 1]).find(|&i| blows_up(w, i, xt, v_new[i]))
-            })
-            .into_iter()
-            .flatten()
-            .next()
+        self.apply_internal(t, bad, recorded)
     }
 
     /// The end of an internal batch at tick `t`, on the executor in runs of
     /// vertices: each vertex whose velocity changed takes its new velocity
-    /// (`ws.v_new`) and its position at `t`, and gets a breakpoint. As on one
-    /// thread in vertex order, a non-finite new state stops the batch at the
-    /// first such vertex, `bad`: the vertices before it are applied, it and
-    /// the later ones are not.
-    fn apply_internal(&mut self, t: Tick, bad: Option<usize>) -> Result<(), SimError> {
+    /// (`ws.v_new`) and its position at `t`, and gets a breakpoint (over
+    /// ranks: each live vertex). As on one thread in vertex order, a
+    /// non-finite new state stops the batch at the first such vertex, `bad`:
+    /// the vertices before it are applied, it and the later ones are not.
+    /// Over ranks, `recorded` is the breakpoints the tick adds over every
+    /// rank (each rank stages only its live vertices').
+    fn apply_internal(
+        &mut self,
+        t: Tick,
+        bad: Option<usize>,
+        recorded: Option<usize>,
+    ) -> Result<(), SimError> {
         let _span = trace::span("tick states");
         let ws = &mut self.ws;
         let n = self.world.x.len();
@@ -156,6 +183,7 @@ impl<E: Executor> Engine<E> {
         let v_new = &ws.v_new;
         let bounds = &ws.vertex_runs;
         let limit = bad.unwrap_or(n);
+        let live = self.share.as_ref().map(|_| &ws.pass_share.live[..]);
         struct Run<'a> {
             start: usize,
             x: &'a mut [DVec3],
@@ -187,7 +215,7 @@ impl<E: Executor> Engine<E> {
             let end = r.x.len().min(limit.saturating_sub(r.start));
             for j in 0..end {
                 let i = r.start + j;
-                if v_new[i] != r.v[j] {
+                if live.is_none_or(|l| l[i]) && v_new[i] != r.v[j] {
                     r.x[j] = xt[i];
                     r.tau[j] = t;
                     r.v[j] = v_new[i];
@@ -195,7 +223,7 @@ impl<E: Executor> Engine<E> {
                 }
             }
         });
-        let added = apply_runs.iter().map(|r| r.added).sum();
+        let added = recorded.unwrap_or_else(|| apply_runs.iter().map(|r| r.added).sum());
         drop(apply_runs);
         let world = &self.world;
         self.traj

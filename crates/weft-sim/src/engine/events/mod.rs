@@ -102,6 +102,8 @@ pub(super) struct Workspace {
     /// The islands' kicks at an internal tick by vertex run: (vertex in the
     /// run, impulse), each vertex's in fold order.
     kicks_by_run: Vec<Vec<(u32, DVec3)>>,
+    /// Over ranks: the vertices this rank keeps current through the pass.
+    pass_share: crate::share::PassShare,
 }
 
 impl Workspace {
@@ -261,8 +263,13 @@ impl<E: Executor> Engine<E> {
         }
         // Store the staged internal ticks' breakpoints, then drift everything
         // to the end of the pass (the window end unless the pass was cut
-        // short).
+        // short); over ranks every rank first takes the states of the
+        // vertices it did not keep current from their owners.
         let _end = trace::span("pass end");
+        if let Some(share) = &self.share {
+            let w = &mut self.world;
+            share.gather_states(&self.exec, &mut w.x, &mut w.v, &mut w.tau, &mut self.traj)?;
+        }
         self.traj.flush(&self.exec, &self.ws.vertex_runs);
         let w = &mut self.world;
         for i in 0..w.x.len() {
@@ -317,6 +324,15 @@ impl<E: Executor> Engine<E> {
             .map(|k| packs.stencils_of(k).len() as f64)
             .collect();
         ws.island_rank = place_largest_first(&ws.island_cost, self.exec.ranks());
+        if let Some(share) = &self.share {
+            // Every vertex an island's stencils read, with the island's rank.
+            let reads = (0..packs.len()).flat_map(|k| {
+                let r = ws.island_rank[k];
+                (packs.stencils_of(k).iter())
+                    .flat_map(move |&a| active[a as usize].0.v.map(|i| (i, r)))
+            });
+            ws.pass_share = share.pass(reads);
+        }
     }
 
     /// Every island's segment `[s, e)` (and its kicks at the internal tick
