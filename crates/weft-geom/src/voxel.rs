@@ -73,9 +73,13 @@ pub fn overlapping_pairs(hulls: &[Dop26]) -> Vec<(u32, u32)> {
         }
         let lo = [cell(0, d.lo[0]), cell(1, d.lo[1]), cell(2, d.lo[2])];
         let hi = [cell(0, d.hi[0]), cell(1, d.hi[1]), cell(2, d.hi[2])];
+        // Each axis spans at most 2^64 cells; their product can overflow
+        // even i128 (a hull across 1e300 m): count it as too many.
         let count: i128 = (0..3)
-            .map(|k| i128::from(hi[k]) - i128::from(lo[k]) + 1)
-            .product();
+            .try_fold(1i128, |n, k| {
+                n.checked_mul(i128::from(hi[k]) - i128::from(lo[k]) + 1)
+            })
+            .unwrap_or(i128::MAX);
         if count > MAX_CELLS {
             irregular.push(i);
             continue;
@@ -168,6 +172,19 @@ mod tests {
         assert!(!got
             .iter()
             .any(|&(i, j)| i == 1 || j == 1 || i == 5 || j == 5));
+    }
+
+    /// A hull across 1e300 m among unit ones: its cell count overflows
+    /// even i128 (2^64 cells per axis), so it is tested directly.
+    #[test]
+    fn a_hull_of_astronomical_size_is_tested_directly() {
+        let unit = boxed(DVec3::ZERO, DVec3::ONE);
+        let far = boxed(DVec3::splat(5.0), DVec3::splat(6.0));
+        let thrown = boxed(DVec3::splat(0.5), DVec3::splat(1e300));
+        let hulls = [unit, far, thrown, unit];
+        let got = overlapping_pairs(&hulls);
+        assert_eq!(got, brute_force_pairs(&hulls));
+        assert!(got.contains(&(0, 2)) && got.contains(&(1, 2)) && got.contains(&(2, 3)));
     }
 
     #[test]

@@ -220,3 +220,37 @@ fn twister_hash<E: Executor>(scene: &weft_io::scene::Scene, exec: E) -> String {
     }
     e.state_hash()
 }
+
+/// A vertex whose mass turns out not to be a number: its first new velocity
+/// is not finite. Every executor stops at the same vertex with the same
+/// error (over ranks the vertex's owner finds it; the other ranks count
+/// the changed velocities before it again, and every rank stops there).
+#[test]
+fn a_blow_up_stops_every_executor_at_the_same_vertex() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/crumple.toml");
+    let scene = load_scene(&path, &["size=300".into(), "partitions=8".into()]).unwrap();
+    fn broken<E: Executor>(scene: &weft_io::scene::Scene, exec: E) -> (String, u64) {
+        let world = weft_par::build_world(&scene.world).unwrap();
+        let mut e = Engine::new(world, exec).unwrap();
+        // A vertex in the middle of the cloth (owned by a middle rank).
+        let k = e.world.x.len() / 2;
+        e.world.inv_mass[k] = f64::NAN;
+        let err = e.step_window().map(|_| ()).unwrap_err();
+        // (the state the error leaves: the window start's, on every executor)
+        let x_bits = e
+            .world
+            .x
+            .iter()
+            .map(|p| p.x.to_bits())
+            .fold(0, u64::wrapping_add);
+        (err.to_string(), x_bits)
+    }
+    let reference = broken(&scene, Serial);
+    assert!(reference.0.contains("non-finite"), "{}", reference.0);
+    for ranks in [2, 3] {
+        let outcomes = in_process(ranks, |_| Serial, |exec| broken(&scene, exec));
+        for (rank, o) in outcomes.iter().enumerate() {
+            assert_eq!(o, &reference, "rank {rank} of {ranks}");
+        }
+    }
+}
