@@ -188,8 +188,9 @@ pub(super) struct SegmentOutput {
 }
 
 /// A contact island's stencils, its vertices' state while it runs, and
-/// what persists over the pass (dormancy, anchors).
-#[derive(Debug)]
+/// what persists over the pass (dormancy, anchors). (`Default`: an island
+/// placed on another rank, never run here.)
+#[derive(Debug, Default)]
 pub(super) struct Island {
     /// Its dynamic vertices (global ids, ascending) and, per vertex, the
     /// inverse mass.

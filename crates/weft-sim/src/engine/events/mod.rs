@@ -317,13 +317,19 @@ impl<E: Executor> Engine<E> {
         let packs = islands.packed(self.island_pack);
         let ws = &mut self.ws;
         ws.pass_end = t1;
-        ws.islands = (0..packs.len())
-            .map(|k| Mutex::new(Island::new(&packs, k, active, w, t0)))
-            .collect();
         ws.island_cost = (0..packs.len())
             .map(|k| packs.stencils_of(k).len() as f64)
             .collect();
         ws.island_rank = place_largest_first(&ws.island_cost, self.exec.ranks());
+        // Each rank builds the islands placed on it (they run there for the
+        // whole pass; the others' results arrive with every segment).
+        let me = self.exec.rank() as u32;
+        ws.islands = (0..packs.len())
+            .map(|k| match ws.island_rank[k] == me {
+                true => Mutex::new(Island::new(&packs, k, active, w, t0)),
+                false => Mutex::default(),
+            })
+            .collect();
         if let Some(share) = &self.share {
             // Every vertex an island's stencils read, with the island's rank.
             let reads = (0..packs.len()).flat_map(|k| {
