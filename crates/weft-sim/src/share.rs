@@ -16,11 +16,12 @@
 //! 2. **new velocities** of the owned vertices that another rank reads (a
 //!    collective): the *shared* vertices, those an internal stencil reads
 //!    off its vertex's owner (the boundary) and those of contact islands
-//!    placed off their owner ([`PassShare`]). A rank advances its own and
-//!    the shared vertices at each internal tick; every other vertex it
-//!    leaves as it was until the pass ends, when each rank hands every
-//!    other its owned vertices' states (one collective per pass), so every
-//!    rank holds every vertex's state again for the stages after the pass.
+//!    placed off their owner ([`PassShare`]). A rank advances the vertices
+//!    it owns or reads (by its partitions' stencils or its islands') at each
+//!    internal tick; every other vertex it leaves as it was until the pass
+//!    ends, when each rank hands every other its owned vertices' states
+//!    (one collective per pass), so every rank holds every vertex's state
+//!    again for the stages after the pass.
 //!
 //! Each rank's first vertex whose new state is not finite travels with its
 //! velocities, so every rank stops the tick at the same vertex.

@@ -772,11 +772,7 @@ fn projection(
             .find(|t| t.ranks == *ranks)
             .map_or(0.0, |t| t.critical_path_seconds_per_window);
         replayed.push((*ranks, seconds / windows, critical));
-        let mut iv =
-            project::intervals(&s.steps).map_err(|e| anyhow::anyhow!("{ranks} ranks: {e}"))?;
-        for i in &mut iv {
-            i.work.iter_mut().for_each(|w| *w /= windows);
-        }
+        let iv = project::intervals(&s.steps).map_err(|e| anyhow::anyhow!("{ranks} ranks: {e}"))?;
         measured.push((*ranks, iv));
     }
     let t1 = r
@@ -788,10 +784,12 @@ fn projection(
         .map_err(|e| anyhow::anyhow!(e))?
         .into_iter()
         .map(|mut p| {
-            // The intervals hold a whole run's collectives: per window.
+            // The intervals span the whole run: per window (the model is
+            // linear in the work, so scaling after the fit is the same).
+            p.work /= windows;
             p.collectives /= windows;
             p.point_to_point /= windows;
-            p.seconds = p.work + p.collectives + p.point_to_point;
+            p.seconds /= windows;
             let e = t1.map(|t1| t1 / (p.ranks as f64 * p.seconds));
             (p, e)
         })
