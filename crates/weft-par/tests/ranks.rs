@@ -202,14 +202,34 @@ fn rank_shares_mirror_and_cover_every_fold() {
                         );
                     }
                 }
-                assert_eq!(
-                    pass.shared_owned[share.owner[0] as usize].contains(&0),
-                    ranks > 1,
-                    "{ctx}: an island off vertex 0's owner"
-                );
+                // Vertex 0's owner sends its velocity to the island's rank.
+                let island_rank = (share.owner[0] + 1) % ranks as u32;
+                if share.owns(0) && ranks > 1 {
+                    assert!(
+                        pass.send[island_rank as usize].contains(&0),
+                        "{ctx}: an island off vertex 0's owner"
+                    );
+                }
+                // What this rank receives from each peer is what the peer
+                // sends it, and it receives every vertex it keeps current
+                // but does not own, from its owner.
+                for peer in 0..ranks {
+                    if peer == r {
+                        continue;
+                    }
+                    let theirs = shares[peer].pass([(0u32, island_rank)]);
+                    assert_eq!(pass.recv[peer], theirs.send[r], "{ctx}: from {peer}");
+                }
+                for i in 0..w.num_vertices() {
+                    let received = pass.recv[share.owner[i] as usize].contains(&(i as u32));
+                    assert_eq!(
+                        received,
+                        pass.live[i] && !share.owns(i),
+                        "{ctx}: vertex {i} received"
+                    );
+                }
                 // Live here: owned, or read here by a partition or the
                 // island (never more).
-                let island_rank = (share.owner[0] + 1) % ranks as u32;
                 for i in 0..w.num_vertices() {
                     let read = share.read_here[i] || (i == 0 && island_rank == r as u32);
                     assert_eq!(pass.live[i], share.owns(i) || read, "{ctx}: vertex {i}");

@@ -137,6 +137,29 @@ pub struct StageSeconds {
     /// out (`crate::cpu`; `internal` is not split out).
     #[serde(default)]
     pub cpu: StageCpu,
+    /// The bytes this rank sent to its peers in each stage (over ranks).
+    #[serde(default)]
+    pub sent: StageSent,
+}
+
+/// Bytes sent per stage of one rank (see [`StageSeconds::sent`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StageSent {
+    pub events: f64,
+    pub broad: f64,
+    pub narrow: f64,
+    pub commit: f64,
+    pub predict: f64,
+}
+
+impl std::ops::AddAssign for StageSent {
+    fn add_assign(&mut self, o: Self) {
+        self.events += o.events;
+        self.broad += o.broad;
+        self.narrow += o.narrow;
+        self.commit += o.commit;
+        self.predict += o.predict;
+    }
 }
 
 /// CPU seconds per stage of one rank (see [`StageSeconds::cpu`]).

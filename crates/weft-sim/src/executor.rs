@@ -9,7 +9,8 @@
 //! Executors over *ranks* (processes, or threads standing in for them, each
 //! with memory of its own) also spread the heavy stages over the ranks:
 //! [`Executor::map_on_ranks`] and [`Executor::chunks_on_ranks`] compute each
-//! item on one rank and hand every rank all results. They are **collective**:
+//! item on one rank and hand every rank all results;
+//! [`Executor::all_to_all`] hands each rank only what is addressed to it. They are **collective**:
 //! every rank's engine calls them in the same order with the same arguments —
 //! which holds because every rank takes the same decisions (from the same
 //! positions, velocities and active layers). On a single-memory executor they are `map` and
@@ -35,6 +36,10 @@ pub struct Traffic {
     #[serde(default)]
     pub wait_cpu_ns: u64,
 }
+
+/// What [`Executor::all_to_all`] brings a rank: every rank's head, in rank
+/// order, and the part each rank addressed to it (`None`: none).
+pub type Addressed<T> = (Vec<Vec<u64>>, Vec<Option<T>>);
 
 /// Ranks lost contact (a peer failed or is gone): the run cannot go on.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -158,6 +163,21 @@ pub trait Executor: Sync {
         }
         overlap();
         Ok(Vec::new())
+    }
+
+    /// **Collective over ranks.** Every rank hands every rank `head` (as
+    /// many words on every rank: what all must agree on) and rank `j` its
+    /// `parts[j]` (one per rank; `None` sends nothing; this rank's own is
+    /// kept). Returns every rank's head in rank order and the part each rank
+    /// addressed to this one (its own in its place): results a rank computed
+    /// for the vertices another keeps, sent only there. On a single memory
+    /// `(vec![head], parts)`.
+    fn all_to_all<T: Message>(
+        &self,
+        head: Vec<u64>,
+        parts: Vec<Option<T>>,
+    ) -> Result<Addressed<T>, CommError> {
+        Ok((vec![head], parts))
     }
 
     /// **Collective over ranks.** Every rank's `mine`, in rank order (this

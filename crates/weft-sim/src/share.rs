@@ -13,11 +13,13 @@
 //!    the neighbour owns folds. The *boundary* partitions (those computing
 //!    such a slot) are evaluated first, their slots sent, and the *interior*
 //!    partitions evaluated while the messages travel;
-//! 2. **new velocities** of the owned vertices that another rank reads (a
-//!    collective): the *shared* vertices, those an internal stencil reads
-//!    off its vertex's owner (the boundary) and those of contact islands
-//!    placed off their owner ([`PassShare`]). A rank advances the vertices
-//!    it owns or reads (by its partitions' stencils or its islands') at each
+//! 2. **new velocities** of the owned vertices that another rank reads, to
+//!    the ranks that read them (an all-to-all: each rank's first non-finite
+//!    vertex and count of changed velocities to every rank, the velocities
+//!    only where they are read): the vertices an internal stencil reads off
+//!    its vertex's owner (the boundary) and those of contact islands placed
+//!    off their owner ([`PassShare`]). A rank advances the vertices it owns
+//!    or reads (by its partitions' stencils or its islands') at each
 //!    internal tick; every other vertex it leaves as it was until the pass
 //!    ends, when each rank hands every other its owned vertices' states
 //!    (one collective per pass), so every rank holds every vertex's state
@@ -68,6 +70,10 @@ pub struct RankShare {
     /// Per vertex: an internal stencil of a partition placed on this rank
     /// reads it.
     pub read_here: Vec<bool>,
+    /// Per vertex `i`: the ranks other than its owner whose partitions read
+    /// it (`reader_ranks[reader_start[i]..reader_start[i + 1]]`, ascending).
+    reader_start: Vec<u32>,
+    reader_ranks: Vec<u32>,
 }
 
 /// What a rank keeps current through one pass's internal ticks.
@@ -76,9 +82,13 @@ pub struct PassShare {
     /// Per vertex: advanced on this rank at every internal tick (owned
     /// here, or read here: by a partition or an island placed here).
     pub live: Vec<bool>,
-    /// Per rank: the shared vertices it owns (ascending), whose new
-    /// velocities it hands every rank at each internal tick.
-    pub shared_owned: Vec<Vec<u32>>,
+    /// Per peer rank: the vertices this rank owns that the peer keeps live
+    /// (ascending), whose new velocities it sends there at each internal
+    /// tick.
+    pub send: Vec<Vec<u32>>,
+    /// Per peer rank: the vertices the peer owns that this rank keeps live
+    /// (ascending; the peer's `send` for this rank).
+    pub recv: Vec<Vec<u32>>,
 }
 
 impl RankShare {
@@ -116,6 +126,7 @@ impl RankShare {
         // fold no slot).
         let mut boundary = vec![false; n];
         let mut read_here = vec![false; n];
+        let mut off_owner: Vec<(u32, u32)> = Vec::new();
         for (p, part) in internal.partitions.iter().enumerate() {
             let reads = (part.stretch.clone())
                 .flat_map(|s| internal.stretch[s].verts.to_vec())
@@ -123,12 +134,23 @@ impl RankShare {
             for i in reads {
                 if owner[i as usize] != home[p] {
                     boundary[i as usize] = true;
+                    off_owner.push((i, home[p]));
                 }
                 if home[p] as usize == rank {
                     read_here[i as usize] = true;
                 }
             }
         }
+        off_owner.sort_unstable();
+        off_owner.dedup();
+        let mut reader_start = vec![0u32; n + 1];
+        for &(i, _) in &off_owner {
+            reader_start[i as usize + 1] += 1;
+        }
+        for i in 0..n {
+            reader_start[i + 1] += reader_start[i];
+        }
+        let reader_ranks = off_owner.iter().map(|&(_, r)| r).collect();
         let mut boundary_partition = vec![false; home.len()];
         let mut send_slots = Vec::new();
         let mut recv_slots = Vec::new();
@@ -160,32 +182,49 @@ impl RankShare {
             owned,
             boundary,
             read_here,
+            reader_start,
+            reader_ranks,
         }
     }
 
+    /// The ranks other than vertex `i`'s owner whose partitions read it
+    /// (ascending).
+    pub fn readers(&self, i: usize) -> &[u32] {
+        &self.reader_ranks[self.reader_start[i] as usize..self.reader_start[i + 1] as usize]
+    }
+
     /// The share of a pass whose contact islands read the vertices
-    /// `island_reads` (vertex, the rank its island runs on): the boundary
-    /// vertices and those an island reads off their owner are shared; this
-    /// rank keeps current those it owns or reads.
+    /// `island_reads` (vertex, the rank its island runs on): this rank keeps
+    /// current those it owns or reads, receives the new velocities of those
+    /// it reads off their owner, and sends its own to the ranks that read
+    /// them.
     pub fn pass(&self, island_reads: impl IntoIterator<Item = (u32, u32)>) -> PassShare {
-        let mut shared = self.boundary.clone();
+        let me = self.rank as u32;
         let mut live = self.read_here.clone();
+        let mut send = vec![Vec::new(); self.ranks];
         for (i, r) in island_reads {
-            if self.owner[i as usize] != r {
-                shared[i as usize] = true;
-            }
-            if r as usize == self.rank {
+            if r == me {
                 live[i as usize] = true;
+            } else if self.owns(i as usize) {
+                send[r as usize].push(i);
             }
         }
+        let mut recv = vec![Vec::new(); self.ranks];
         for (i, l) in live.iter_mut().enumerate() {
-            *l |= self.owns(i);
+            if self.owns(i) {
+                *l = true;
+                for &r in self.readers(i) {
+                    send[r as usize].push(i as u32);
+                }
+            } else if *l {
+                recv[self.owner[i] as usize].push(i as u32);
+            }
         }
-        let mut shared_owned = vec![Vec::new(); self.ranks];
-        for (i, _) in shared.iter().enumerate().filter(|s| *s.1) {
-            shared_owned[self.owner[i] as usize].push(i as u32);
+        for list in &mut send {
+            list.sort_unstable();
+            list.dedup();
         }
-        PassShare { live, shared_owned }
+        PassShare { live, send, recv }
     }
 
     /// Whether vertex `i` is folded and advanced on this rank.
@@ -226,15 +265,17 @@ impl RankShare {
         Ok(())
     }
 
-    /// **Collective.** Hands every rank the new velocities of the shared
-    /// vertices the others own, and agrees on the first vertex whose new
+    /// **Collective** (an all-to-all). Sends the new velocities of the
+    /// owned vertices other ranks read to those ranks, receives those this
+    /// rank reads off their owners, and agrees on the first vertex whose new
     /// state is not finite and on how many vertices before it change
     /// velocity (exchange 2). `bad` is this rank's first among the vertices
     /// it owns, `changed` how many it owns before it change velocity, and
-    /// `changed_below(v_new, b)` how many it owns before `b` change velocity (asked
-    /// only when another rank's `bad` comes first: one more collective, in
-    /// a pass that is about to end). Returns the first `bad` over all ranks
-    /// and the vertices before it that change velocity, over all ranks.
+    /// `changed_below(v_new, b)` how many it owns before `b` change velocity
+    /// (asked only when another rank's `bad` comes first: one more
+    /// collective, in a pass that is about to end). Returns the first `bad`
+    /// over all ranks and the vertices before it that change velocity, over
+    /// all ranks.
     pub fn exchange_velocities<E: Executor>(
         &self,
         exec: &E,
@@ -243,46 +284,59 @@ impl RankShare {
         (bad, changed): (Option<usize>, usize),
         changed_below: &dyn Fn(&[DVec3], usize) -> usize,
     ) -> Result<(Option<usize>, usize), CommError> {
-        let lists = &pass.shared_owned;
-        // The first entry carries `bad` as the bits of its x (none: all
-        // ones) and `changed` as the bits of its y.
+        // The head: `bad` (none: all ones) and `changed`.
         let flag = bad.map_or(u64::MAX, |b| b as u64);
-        let mut mine = Vec::with_capacity(1 + lists[self.rank].len());
-        mine.push(DVec3::new(
-            f64::from_bits(flag),
-            f64::from_bits(changed as u64),
-            0.0,
-        ));
-        mine.extend(lists[self.rank].iter().map(|&k| v_new[k as usize]));
-        let all = self.gathered(exec.all_gather_vectors(&mine)?)?;
+        let parts: Vec<Option<Vec<DVec3>>> = (pass.send.iter())
+            .map(|list| {
+                (!list.is_empty()).then(|| list.iter().map(|&k| v_new[k as usize]).collect())
+            })
+            .collect();
+        let (heads, parts) = exec.all_to_all(vec![flag, changed as u64], parts)?;
+        if heads.len() != self.ranks || parts.len() != self.ranks {
+            return Err(CommError(format!(
+                "rank {}: an exchange brought {} heads for {} ranks",
+                self.rank,
+                heads.len(),
+                self.ranks
+            )));
+        }
         let mut first = bad;
-        let mut counts = Vec::with_capacity(self.ranks);
-        for (j, values) in all.into_iter().enumerate() {
-            if values.len() != 1 + lists[j].len() {
+        for (j, head) in heads.iter().enumerate() {
+            if head.len() != 2 {
                 return Err(CommError(format!(
-                    "rank {}: rank {j} sent {} values for {}",
+                    "rank {}: rank {j} sent a head of {} words",
                     self.rank,
-                    values.len(),
-                    1 + lists[j].len()
+                    head.len()
                 )));
             }
-            let theirs = values[0].x.to_bits();
-            counts.push((theirs, values[0].y.to_bits() as usize));
-            if theirs != u64::MAX {
-                first = Some(first.map_or(theirs as usize, |f| f.min(theirs as usize)));
+            if head[0] != u64::MAX {
+                first = Some(first.map_or(head[0] as usize, |f| f.min(head[0] as usize)));
             }
-            if j != self.rank {
-                for (&k, value) in lists[j].iter().zip(&values[1..]) {
-                    v_new[k as usize] = *value;
-                }
+        }
+        for (j, part) in parts.into_iter().enumerate() {
+            if j == self.rank {
+                continue;
+            }
+            let list = &pass.recv[j];
+            let values = part.unwrap_or_default();
+            if values.len() != list.len() {
+                return Err(CommError(format!(
+                    "rank {}: rank {j} sent {} velocities for {}",
+                    self.rank,
+                    values.len(),
+                    list.len()
+                )));
+            }
+            for (&k, value) in list.iter().zip(values) {
+                v_new[k as usize] = value;
             }
         }
         let Some(b) = first else {
-            return Ok((None, counts.iter().map(|c| c.1).sum()));
+            return Ok((None, heads.iter().map(|h| h[1] as usize).sum()));
         };
         // Each rank counted up to its own first non-finite vertex; count
         // again up to the first of all (its rank's count stands).
-        let mine = if counts[self.rank].0 == b as u64 {
+        let mine = if heads[self.rank][0] == b as u64 {
             changed
         } else {
             changed_below(v_new, b)

@@ -513,6 +513,16 @@ impl Trajectories {
         );
     }
 
+    /// The error of adding `n` breakpoints one by one when they do not all
+    /// fit: the count at the first one that breaks the budget.
+    pub fn over_budget(&self, n: usize) -> BudgetExceeded {
+        let fitting = self.budget / BYTES_PER_BREAKPOINT;
+        BudgetExceeded {
+            breakpoints: (self.total + 1).max(fitting + 1).min(self.total + n),
+            budget_bytes: self.budget,
+        }
+    }
+
     /// Counts `n` breakpoints recorded through [`TrajectoryRun`]s against the
     /// budget.
     pub fn add_recorded(&mut self, n: usize) -> Result<(), BudgetExceeded> {

@@ -9,8 +9,10 @@
 //! block of awake stencils, the broad phase's DOPs of the vertices it holds
 //! and its round-robin share of the traversal tasks, the narrow-phase tasks
 //! the locality-aware balancer gives it (Algorithm 2 of the paper), and the
-//! retirement certificates of the stencils whose first vertex it holds. After
-//! each stage one all-gather hands every rank every result, so every rank
+//! retirement certificates of the stencils whose first vertex it holds. The
+//! contact islands' results and the new velocities of an internal tick go
+//! only where they are kept ([`Executor::all_to_all`]); after each other
+//! stage one all-gather hands every rank every result, so every rank
 //! applies the same values in the same order — and every rank's state, and
 //! the result, has the same bits as on one memory. The exchanges that are not
 //! collectives ([`Executor::exchange_words`], point to point) carry the
@@ -164,6 +166,50 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
             .into_iter()
             .map(|s| s.ok_or_else(|| CommError(format!("rank {me}: a result never came"))))
             .collect()
+    }
+
+    fn all_to_all<R: Message>(
+        &self,
+        head: Vec<u64>,
+        parts: Vec<Option<R>>,
+    ) -> Result<weft_sim::executor::Addressed<R>, CommError> {
+        let size = self.transport.size();
+        let me = self.rank();
+        if parts.len() != size {
+            return Err(CommError(format!(
+                "rank {me}: an all-to-all with {} parts for {size} ranks",
+                parts.len()
+            )));
+        }
+        if size == 1 {
+            return Ok((vec![head], parts));
+        }
+        // A part travels as an encoded `Option` (never empty); `None`, as
+        // nothing at all. This rank's own part stays here, not encoded.
+        let mut own = None;
+        let mut bytes = Vec::with_capacity(size);
+        for (j, part) in parts.into_iter().enumerate() {
+            bytes.push(match part {
+                _ if j == me => {
+                    own = part;
+                    Vec::new()
+                }
+                None => Vec::new(),
+                Some(value) => self.encode(&Some(value))?,
+            });
+        }
+        let (heads, received) = self.transport.all_to_all(head, bytes)?;
+        let mut out = Vec::with_capacity(size);
+        for (j, part) in received.into_iter().enumerate() {
+            out.push(if j == me {
+                own.take()
+            } else if part.is_empty() {
+                None
+            } else {
+                self.decode::<Option<R>>(j, &part)?
+            });
+        }
+        Ok((heads, out))
     }
 
     fn chunks_on_ranks<D: Message>(

@@ -22,5 +22,6 @@ pub use executor::{in_process, Ranks};
 pub use internal::run_ticks;
 pub use plan::{place_partitions, plan, RankPlan};
 pub use transport::{
-    ChannelTransport, RankFailure, StepSink, SyncStep, Traffic, TrafficCounter, Transport,
+    ChannelTransport, HeadsAndParts, RankFailure, StepSink, SyncStep, Traffic, TrafficCounter,
+    Transport,
 };

@@ -31,7 +31,7 @@ use mpi::request::{Request, Scope};
 use mpi::traits::*;
 use mpi::{Count, Threading};
 
-use super::transport::{RankFailure, Traffic, TrafficCounter, Transport};
+use super::transport::{HeadsAndParts, RankFailure, Traffic, TrafficCounter, Transport};
 
 /// This process's rank in `MPI_COMM_WORLD`, as a [`Transport`].
 ///
@@ -246,6 +246,106 @@ impl Transport for MpiTransport {
         Ok(parts)
     }
 
+    /// **Collective**: an `MPI_Ialltoall` of each rank's head and each
+    /// part's length (`1 + head.len()` words to every rank), completed by
+    /// polling, then the non-empty parts point to point (tag
+    /// [`ALL_TO_ALL_TAG`]; their lengths are known to both sides by then).
+    fn all_to_all(
+        &self,
+        head: Vec<u64>,
+        mut parts: Vec<Vec<u8>>,
+    ) -> Result<HeadsAndParts, RankFailure> {
+        let _collective = self
+            .collective
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let (size, me) = (self.size, self.rank);
+        if parts.len() != size {
+            return Err(self.failure(format!(
+                "an all-to-all with {} parts for {size} ranks",
+                parts.len()
+            )));
+        }
+        for (j, part) in parts.iter().enumerate() {
+            Count::try_from(part.len()).map_err(|_| {
+                self.failure(format!(
+                    "{} bytes to rank {j}: too large for MPI",
+                    part.len()
+                ))
+            })?;
+        }
+        let words = head.len() + 1;
+        let send: Vec<u64> = (0..size)
+            .flat_map(|j| std::iter::once(parts[j].len() as u64).chain(head.iter().copied()))
+            .collect();
+        let mut recv = vec![0u64; words * size];
+        mpi::request::scope(|scope| {
+            let request =
+                self.mpi_call()
+                    .world()
+                    .immediate_all_to_all_into(scope, &send[..], &mut recv[..]);
+            self.complete(request);
+        });
+        let heads: Vec<Vec<u64>> = recv.chunks_exact(words).map(|c| c[1..].to_vec()).collect();
+        let lens: Vec<usize> = recv.chunks_exact(words).map(|c| c[0] as usize).collect();
+        for (j, &len) in lens.iter().enumerate() {
+            Count::try_from(len).map_err(|_| {
+                self.failure(format!("{len} bytes from rank {j}: too large for MPI"))
+            })?;
+        }
+        let mut received: Vec<Vec<u8>> = (0..size)
+            .map(|j| vec![0u8; if j == me { 0 } else { lens[j] }])
+            .collect();
+        let counts = mpi::request::scope(|scope| {
+            let mut sent = Vec::new();
+            for (j, part) in parts.iter().enumerate() {
+                if j != me && !part.is_empty() {
+                    let world = self.mpi_call().world();
+                    sent.push(
+                        world
+                            .process_at_rank(j as mpi::Rank)
+                            .immediate_send_with_tag(scope, &part[..], ALL_TO_ALL_TAG),
+                    );
+                }
+            }
+            let mut arriving = Vec::new();
+            for (j, buffer) in received.iter_mut().enumerate() {
+                if !buffer.is_empty() {
+                    let world = self.mpi_call().world();
+                    let request = world
+                        .process_at_rank(j as mpi::Rank)
+                        .immediate_receive_into_with_tag(scope, &mut buffer[..], ALL_TO_ALL_TAG);
+                    arriving.push((j, request));
+                }
+            }
+            let counts: Vec<(usize, Count)> = arriving
+                .into_iter()
+                .map(|(j, request)| (j, self.complete(request).count(u8::equivalent_datatype())))
+                .collect();
+            for request in sent {
+                self.complete(request);
+            }
+            counts
+        });
+        for (j, count) in counts {
+            if usize::try_from(count).ok() != Some(lens[j]) {
+                return Err(
+                    self.failure(format!("rank {j} sent {count} bytes, {} expected", lens[j]))
+                );
+            }
+        }
+        let peers = size.saturating_sub(1) as u64;
+        self.sent.add(peers, peers * 8 * words as u64);
+        for (j, part) in parts.iter().enumerate() {
+            if j != me && !part.is_empty() {
+                self.sent.add(1, part.len() as u64);
+            }
+        }
+        self.sent.collective();
+        received[me] = std::mem::take(&mut parts[me]);
+        Ok((heads, received))
+    }
+
     /// **Point to point**: an `MPI_Isend` to each peer of `sends` and an
     /// `MPI_Irecv` from each peer of `recvs` (tag [`EXCHANGE_TAG`]; MPI keeps
     /// messages with one source, tag and communicator in order), then
@@ -333,6 +433,9 @@ impl Transport for MpiTransport {
 
 /// The tag of [`Transport::exchange`]'s messages.
 pub const EXCHANGE_TAG: mpi::Tag = 7;
+
+/// The tag of [`Transport::all_to_all`]'s parts.
+pub const ALL_TO_ALL_TAG: mpi::Tag = 8;
 
 /// Waiting between polls: a few spins first (a collective among ranks on
 /// one machine often completes within microseconds), then yields, then

@@ -8,6 +8,10 @@
 //!   must call it the same number of times, in the same order (the engine's
 //!   control flow is the same on every rank because every rank holds the same
 //!   state).
+//! * [`Transport::all_to_all`]: a **collective** in which every rank hands
+//!   every rank a few words (its *head*, the same for all) and each peer its
+//!   own byte string, empty ones sending nothing: what a rank computed for
+//!   the vertices another rank keeps, with what every rank must agree on.
 //! * [`Transport::exchange`]: **point to point** between neighbours — byte
 //!   strings to some peers, from some peers, with work run while they travel.
 //!   Only the ranks named take part, each at the same point of its run.
@@ -18,6 +22,10 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::{Arc, Mutex};
+
+/// What an all-to-all brings a rank: every rank's head, in rank order, and
+/// the part each rank addressed to it.
+pub type HeadsAndParts = (Vec<Vec<u64>>, Vec<Vec<u8>>);
 
 /// A rank that stopped answering (it failed, or its process is gone).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -98,6 +106,15 @@ pub trait Transport: Send + Sync {
     /// gone: the run cannot go on.
     fn all_gather(&self, mine: Vec<u8>) -> Result<Vec<Vec<u8>>, RankFailure>;
 
+    /// **Collective.** Every rank passes `head` (as many words on every
+    /// rank) and `parts`, one byte string per rank (`parts[j]` for rank `j`;
+    /// its own is kept, not sent). Each gets every rank's head in rank order,
+    /// and the part each rank addressed to it (its own `parts[rank]` in its
+    /// place). An empty part sends no message: the heads and the lengths
+    /// travel in one dense step, the parts point to point.
+    fn all_to_all(&self, head: Vec<u64>, parts: Vec<Vec<u8>>)
+        -> Result<HeadsAndParts, RankFailure>;
+
     /// **Point to point.** Starts sending `sends[k].1` to rank `sends[k].0`
     /// and receiving `recvs[k].1` bytes from rank `recvs[k].0`, runs
     /// `overlap` while they travel, then completes them; returns the received
@@ -138,6 +155,14 @@ impl<T: Transport + ?Sized> Transport for &T {
         (**self).all_gather(mine)
     }
 
+    fn all_to_all(
+        &self,
+        head: Vec<u64>,
+        parts: Vec<Vec<u8>>,
+    ) -> Result<HeadsAndParts, RankFailure> {
+        (**self).all_to_all(head, parts)
+    }
+
     fn exchange(
         &self,
         sends: Vec<(usize, Vec<u8>)>,
@@ -164,12 +189,34 @@ pub struct SyncStep {
     /// its previous step, in nanoseconds: what it computed before this step
     /// could begin, including the work overlapped with the previous one.
     pub work_ns: u64,
-    /// An all-gather (every rank takes part); else a point-to-point exchange.
+    /// A collective (every rank takes part: an all-gather, or an
+    /// all-to-all when `head_bytes` is set); else a point-to-point exchange.
     pub collective: bool,
-    /// Collective: this rank's part, in bytes. Exchange: the bytes sent.
+    /// An all-to-all: the bytes of the head (and length) each rank hands
+    /// every peer in its dense step.
+    pub head_bytes: Option<u64>,
+    /// All-gather: this rank's part, in bytes. All-to-all and exchange: the
+    /// bytes sent, per peer.
     pub sent: Vec<(u32, u64)>,
-    /// Exchange: the bytes received, per peer, in the order received.
+    /// All-to-all and exchange: the bytes received, per peer, in the order
+    /// received.
     pub received: Vec<(u32, u64)>,
+}
+
+/// The words of an all-to-all's head as bytes (little-endian), with the
+/// part's length first.
+pub(crate) fn head_bytes(len: usize, head: &[u64]) -> Vec<u8> {
+    std::iter::once(len as u64)
+        .chain(head.iter().copied())
+        .flat_map(u64::to_le_bytes)
+        .collect()
+}
+
+/// The words of an all-to-all head (length first) from its bytes.
+pub(crate) fn head_words(bytes: &[u8]) -> Vec<u64> {
+    (bytes.chunks_exact(8))
+        .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
+        .collect()
 }
 
 /// Where a rank's [`SyncStep`]s go while they are recorded.
@@ -250,7 +297,13 @@ impl ChannelTransport {
     }
 
     /// Records a step that begins now, if steps are recorded.
-    fn step(&self, collective: bool, sent: Vec<(u32, u64)>, received: Vec<(u32, u64)>) {
+    fn step(
+        &self,
+        collective: bool,
+        head_bytes: Option<u64>,
+        sent: Vec<(u32, u64)>,
+        received: Vec<(u32, u64)>,
+    ) {
         let mut log = self.steps.lock().expect("the step log");
         if let Some(log) = log.as_mut() {
             let now = self.work_ns();
@@ -259,6 +312,7 @@ impl ChannelTransport {
             log.sink.lock().expect("the step sink").push(SyncStep {
                 work_ns,
                 collective,
+                head_bytes,
                 sent,
                 received,
             });
@@ -267,6 +321,18 @@ impl ChannelTransport {
 }
 
 impl ChannelTransport {
+    /// Completes the step recorded last with what it received (an
+    /// all-to-all learns it only as its parts arrive).
+    fn step_received(&self, received: Vec<(u32, u64)>) {
+        let log = self.steps.lock().expect("the step log");
+        if let Some(log) = log.as_ref() {
+            let mut sink = log.sink.lock().expect("the step sink");
+            if let Some(last) = sink.last_mut() {
+                last.received = received;
+            }
+        }
+    }
+
     fn gone(&self, j: usize) -> RankFailure {
         RankFailure {
             rank: self.rank,
@@ -314,6 +380,7 @@ impl Transport for ChannelTransport {
         self.sent.collective();
         self.step(
             true,
+            None,
             vec![(self.rank as u32, mine.len() as u64)],
             Vec::new(),
         );
@@ -334,6 +401,70 @@ impl Transport for ChannelTransport {
         Ok(all)
     }
 
+    /// The head (with the part's length) to every peer, then each
+    /// non-empty part: one message each, in that order on each pair's
+    /// channel, so the counts match the MPI transport's.
+    fn all_to_all(
+        &self,
+        head: Vec<u64>,
+        mut parts: Vec<Vec<u8>>,
+    ) -> Result<HeadsAndParts, RankFailure> {
+        let n = self.size();
+        if parts.len() != n {
+            return Err(RankFailure {
+                rank: self.rank,
+                what: format!("an all-to-all with {} parts for {n} ranks", parts.len()),
+            });
+        }
+        self.sent.collective();
+        let others = |v: &[Vec<u8>]| -> Vec<(u32, u64)> {
+            (0..n)
+                .filter(|&j| j != self.rank && !v[j].is_empty())
+                .map(|j| (j as u32, v[j].len() as u64))
+                .collect()
+        };
+        let head_len = 8 * (head.len() as u64 + 1);
+        self.step(true, Some(head_len), others(&parts), Vec::new());
+        for j in (0..n).filter(|&j| j != self.rank) {
+            self.send(j, head_bytes(parts[j].len(), &head))?;
+        }
+        for j in (0..n).filter(|&j| j != self.rank) {
+            if !parts[j].is_empty() {
+                self.send(j, std::mem::take(&mut parts[j]))?;
+            }
+        }
+        let mut heads = vec![Vec::new(); n];
+        let mut received = vec![Vec::new(); n];
+        for j in (0..n).filter(|&j| j != self.rank) {
+            let words = head_words(&self.receive(j)?);
+            if words.len() != head.len() + 1 {
+                return Err(RankFailure {
+                    rank: self.rank,
+                    what: format!(
+                        "rank {j} sent a head of {} words, {} expected",
+                        words.len().saturating_sub(1),
+                        head.len()
+                    ),
+                });
+            }
+            let len = words[0] as usize;
+            if len > 0 {
+                received[j] = self.receive(j)?;
+                if received[j].len() != len {
+                    return Err(RankFailure {
+                        rank: self.rank,
+                        what: format!("rank {j} sent {} bytes, {len} expected", received[j].len()),
+                    });
+                }
+            }
+            heads[j] = words[1..].to_vec();
+        }
+        self.step_received(others(&received));
+        heads[self.rank] = head;
+        received[self.rank] = std::mem::take(&mut parts[self.rank]);
+        Ok((heads, received))
+    }
+
     fn exchange(
         &self,
         sends: Vec<(usize, Vec<u8>)>,
@@ -347,6 +478,7 @@ impl Transport for ChannelTransport {
         }
         self.step(
             false,
+            None,
             (sends.iter())
                 .map(|(j, b)| (*j as u32, b.len() as u64))
                 .collect(),
@@ -425,6 +557,51 @@ mod tests {
         drop(last);
         let err = transports[0].all_gather(vec![1]).unwrap_err();
         assert!(err.to_string().contains("rank 1 is gone"), "{err}");
+    }
+
+    #[test]
+    fn all_to_all_hands_each_rank_its_part_and_every_head() {
+        // Rank r sends rank j (r + j) % 3 bytes of value 10 r + j (none when
+        // 0), with a head [r, round]; an all-gather between rounds keeps
+        // them apart.
+        let transports = ChannelTransport::connected(3);
+        let sink: StepSink = Arc::default();
+        transports[1].record_steps(sink.clone());
+        let results = on_each_rank(&transports, |t| {
+            let r = t.rank();
+            (0..3u64)
+                .map(|round| {
+                    let parts = (0..3)
+                        .map(|j| vec![(10 * r + j) as u8; (r + j + round as usize) % 3])
+                        .collect();
+                    let got = t.all_to_all(vec![r as u64, round], parts).unwrap();
+                    t.all_gather(vec![r as u8]).unwrap();
+                    got
+                })
+                .collect::<Vec<_>>()
+        });
+        for (r, rounds) in results.iter().enumerate() {
+            for (round, (heads, parts)) in rounds.iter().enumerate() {
+                for j in 0..3 {
+                    assert_eq!(heads[j], vec![j as u64, round as u64]);
+                    let len = (j + r + round) % 3;
+                    assert_eq!(parts[j], vec![(10 * j + r) as u8; len], "{r} from {j}");
+                }
+            }
+        }
+        // Rank 1's first step, as recorded: a head of a length and two
+        // words to every peer; a byte to rank 0 and one from it (its parts
+        // with rank 2 are empty, and nothing travels for them).
+        let steps = sink.lock().unwrap();
+        let first = &steps[0];
+        assert!(first.collective);
+        assert_eq!(first.head_bytes, Some(24));
+        assert_eq!(first.sent, vec![(0, 1)]);
+        assert_eq!(first.received, vec![(0, 1)]);
+        // a part list of the wrong length is an error
+        let transports = ChannelTransport::connected(2);
+        let err = transports[0].all_to_all(vec![], vec![vec![]]).unwrap_err();
+        assert!(err.to_string().contains("1 parts for 2 ranks"), "{err}");
     }
 
     #[test]

@@ -64,11 +64,13 @@ impl Snapshot {
     }
 }
 
-/// A stage's wall clock and its rank's work CPU clock
-/// ([`Executor::work_cpu_seconds`]: polling for peers left out).
+/// A stage's wall clock, its rank's work CPU clock
+/// ([`Executor::work_cpu_seconds`]: polling for peers left out) and the
+/// bytes the rank sent.
 struct StageClock {
     wall: Instant,
     cpu: f64,
+    sent: u64,
 }
 
 impl StageClock {
@@ -76,21 +78,24 @@ impl StageClock {
         Self {
             wall: Instant::now(),
             cpu: exec.work_cpu_seconds(),
+            sent: exec.traffic().bytes,
         }
     }
 
-    /// Wall and work-CPU seconds since the start.
-    fn stop<E: Executor>(&self, exec: &E) -> (f64, f64) {
+    /// Wall and work-CPU seconds and bytes sent since the start.
+    fn stop<E: Executor>(&self, exec: &E) -> (f64, f64, f64) {
         (
             self.wall.elapsed().as_secs_f64(),
             exec.work_cpu_seconds() - self.cpu,
+            (exec.traffic().bytes - self.sent) as f64,
         )
     }
 
-    fn add_to<E: Executor>(&self, exec: &E, wall: &mut f64, cpu: &mut f64) {
-        let (w, c) = self.stop(exec);
+    fn add_to<E: Executor>(&self, exec: &E, (wall, cpu, sent): (&mut f64, &mut f64, &mut f64)) {
+        let (w, c, b) = self.stop(exec);
         *wall += w;
         *cpu += c;
+        *sent += b;
     }
 }
 
@@ -402,7 +407,7 @@ impl<E: Executor> Engine<E> {
         } else {
             Predicted::default()
         };
-        (stages.predict, stages.cpu.predict) = clock.stop(&self.exec);
+        (stages.predict, stages.cpu.predict, stages.sent.predict) = clock.stop(&self.exec);
         let mut detected_layers = 0u64;
         loop {
             let clock = StageClock::start(&self.exec);
@@ -415,7 +420,12 @@ impl<E: Executor> Engine<E> {
                 }
             };
             drop(events_span);
-            clock.add_to(&self.exec, &mut stages.events, &mut stages.cpu.events);
+            let stage = (
+                &mut stages.events,
+                &mut stages.cpu.events,
+                &mut stages.sent.events,
+            );
+            clock.add_to(&self.exec, stage);
             stages.internal += counts.internal_seconds;
             if let Some(e) = counts.interrupted.take() {
                 snap.restore(&mut self.world);
@@ -434,7 +444,12 @@ impl<E: Executor> Engine<E> {
                 )
             };
             drop(broad_span);
-            clock.add_to(&self.exec, &mut stages.broad, &mut stages.cpu.broad);
+            let stage = (
+                &mut stages.broad,
+                &mut stages.cpu.broad,
+                &mut stages.sent.broad,
+            );
+            clock.add_to(&self.exec, stage);
             let clock = StageClock::start(&self.exec);
             let count = candidates.as_ref().map_or(0, |c| c.len() as u64);
             let narrow_span = trace::span_with("narrow", "candidates", count);
@@ -447,7 +462,12 @@ impl<E: Executor> Engine<E> {
                 }
             };
             drop(narrow_span);
-            clock.add_to(&self.exec, &mut stages.narrow, &mut stages.cpu.narrow);
+            let stage = (
+                &mut stages.narrow,
+                &mut stages.cpu.narrow,
+                &mut stages.sent.narrow,
+            );
+            clock.add_to(&self.exec, stage);
             // A pass that blew up is a detection too: the stencils near the
             // vertex that went non-finite (typically pushed through too few
             // layers) get more layers, like the reported ones, bounded by
@@ -488,7 +508,12 @@ impl<E: Executor> Engine<E> {
                     &candidates,
                     started,
                 );
-                clock.add_to(&self.exec, &mut stages.commit, &mut stages.cpu.commit);
+                let stage = (
+                    &mut stages.commit,
+                    &mut stages.cpu.commit,
+                    &mut stages.sent.commit,
+                );
+                clock.add_to(&self.exec, stage);
                 stats.stage_seconds = stages;
                 stats.predicted_layers = predicted.layers;
                 stats.predicted_unreached = unreached;

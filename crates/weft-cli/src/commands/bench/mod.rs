@@ -31,7 +31,7 @@ use serde::Serialize;
 use weft_io::checkpoint::read_checkpoint;
 use weft_io::scene::load_scene;
 use weft_par::Threads;
-use weft_sim::diagnostics::StageCpu;
+use weft_sim::diagnostics::{StageCpu, StageSent};
 use weft_sim::{Engine, EngineState, Executor, NarrowLoad, Serial, World};
 
 use super::run::{execute, scene_hash, signals::StopRequest, RunJob, CHECKPOINT_FILE};
@@ -169,6 +169,8 @@ struct RankSample {
     cpu: StageCpu,
     cpu_total: f64,
     cpu_polling: f64,
+    /// Bytes this rank sent per stage.
+    sent: StageSent,
     /// This rank's process's peak resident memory (VmHWM), bytes.
     peak_rss: Option<u64>,
     messages: u64,
@@ -193,6 +195,8 @@ pub struct RankFigures {
     pub peak_rss_bytes: Option<u64>,
     pub messages_per_window: f64,
     pub bytes_per_window: f64,
+    /// The bytes sent per window, per stage.
+    pub sent_bytes_per_window: StageSent,
     /// Communication rounds per window, and both together per internal tick
     /// of every pass (rolled-back ones included).
     pub collectives_per_window: f64,
@@ -908,6 +912,7 @@ fn measure<E: Executor>(
         s.own.commit += w.stage_seconds.commit;
         s.own.predict += w.stage_seconds.predict;
         s.own.cpu += w.stage_seconds.cpu;
+        s.own.sent += w.stage_seconds.sent;
         s.predicted_layers += w.predicted_layers;
         s.detected_layers += w.detected_layers;
         s.predicted_unreached += w.predicted_unreached;
@@ -1035,6 +1040,13 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
                 peak_rss_bytes: samples.iter().filter_map(|s| s.ranks[k].peak_rss).max(),
                 messages_per_window: of_rank(&|s| &s.ranks[k], &|x| x.messages as f64),
                 bytes_per_window: of_rank(&|s| &s.ranks[k], &|x| x.bytes as f64),
+                sent_bytes_per_window: StageSent {
+                    events: of_rank(&|s| &s.ranks[k], &|x| x.sent.events),
+                    broad: of_rank(&|s| &s.ranks[k], &|x| x.sent.broad),
+                    narrow: of_rank(&|s| &s.ranks[k], &|x| x.sent.narrow),
+                    commit: of_rank(&|s| &s.ranks[k], &|x| x.sent.commit),
+                    predict: of_rank(&|s| &s.ranks[k], &|x| x.sent.predict),
+                },
                 collectives_per_window: of_rank(&|s| &s.ranks[k], &|x| x.collectives as f64),
                 exchanges_per_window: of_rank(&|s| &s.ranks[k], &|x| x.exchanges as f64),
                 rounds_per_internal_tick: med(&|s| {
@@ -1310,6 +1322,17 @@ fn table(r: &BenchReport) -> String {
                 ms(k.cpu_polling_seconds_per_window),
                 k.peak_rss_bytes
                     .map_or("unknown".into(), |b| format!("{:.1} MB", b as f64 / 1e6)),
+            );
+            let b = &k.sent_bytes_per_window;
+            let _ = writeln!(
+                s,
+                "            sent: events {:.3} broad {:.3} narrow {:.3} commit {:.3} predict {:.3} MB \
+                 per window",
+                b.events / 1e6,
+                b.broad / 1e6,
+                b.narrow / 1e6,
+                b.commit / 1e6,
+                b.predict / 1e6,
             );
         }
     }

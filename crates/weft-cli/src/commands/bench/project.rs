@@ -9,7 +9,9 @@
 //! * **Replay** ([`replay`]) of one measured run under a LogGP network: each
 //!   rank's clock advances by its measured work; an all-gather starts when
 //!   the last rank reaches it and takes `⌈log2 R⌉ (L + 2o) + G S (R-1)/R`
-//!   for `S` bytes in all; a point-to-point message leaves after the
+//!   for `S` bytes in all; an all-to-all hands every rank every rank's head
+//!   of `h` bytes in `⌈log2 R⌉ (L + 2o) + G h (R-1)` and then its parts as
+//!   point-to-point messages; a point-to-point message leaves after the
 //!   sender's overhead `o` and arrives `L + G b` later, and the receiver
 //!   pays `o` (no overlap of work and messages is credited). So the replay
 //!   keeps the measured load imbalance between every two collectives, which
@@ -58,6 +60,27 @@ impl Network {
         let rounds = (ranks as f64).log2().ceil();
         rounds * (self.latency + 2.0 * self.overhead)
             + self.seconds_per_byte * total * (ranks - 1) as f64 / ranks as f64
+    }
+}
+
+impl Network {
+    /// The dense step of an all-to-all: every rank's head of `head` bytes
+    /// to every rank (`⌈log2 R⌉` rounds, as an all-gather of them).
+    fn all_to_all_heads(&self, ranks: usize, head: f64) -> f64 {
+        self.all_gather(ranks, head * ranks as f64)
+    }
+
+    /// A rank's parts of an all-to-all after the heads: `sent` and
+    /// `received` (per peer, bytes), each message paying its overhead and
+    /// the largest direction its bytes.
+    fn all_to_all_parts(&self, sent: &[(u32, u64)], received: &[(u32, u64)]) -> f64 {
+        if sent.is_empty() && received.is_empty() {
+            return 0.0;
+        }
+        let bytes = |v: &[(u32, u64)]| v.iter().map(|&(_, b)| b as f64).sum::<f64>();
+        (sent.len() + received.len()) as f64 * self.overhead
+            + self.latency
+            + self.seconds_per_byte * bytes(sent).max(bytes(received))
     }
 }
 
@@ -123,12 +146,24 @@ pub fn replay(steps: &[Vec<SyncStep>], net: &Network) -> Result<f64, String> {
         if gathering {
             let mut start = 0.0f64;
             let mut total = 0.0;
+            let mut parts = 0.0f64;
+            let mut head = None;
             for r in 0..n {
                 let s = &steps[r][at[r]];
                 start = start.max(t[r] + s.work_ns as f64 * 1e-9);
-                total += s.sent.iter().map(|&(_, b)| b as f64).sum::<f64>();
+                match s.head_bytes {
+                    Some(h) => {
+                        head = Some(h as f64);
+                        parts = parts.max(net.all_to_all_parts(&s.sent, &s.received));
+                    }
+                    None => total += s.sent.iter().map(|&(_, b)| b as f64).sum::<f64>(),
+                }
             }
-            let end = start + net.all_gather(n, total);
+            let end = start
+                + match head {
+                    Some(h) => net.all_to_all_heads(n, h) + parts,
+                    None => net.all_gather(n, total),
+                };
             for r in 0..n {
                 t[r] = end;
                 at[r] += 1;
@@ -151,6 +186,9 @@ pub struct Interval {
     pub work: Vec<f64>,
     /// The bytes the ending all-gather moves in all.
     pub gathered: f64,
+    /// The ending collective is an all-to-all with heads of these bytes
+    /// (its parts are counted with the point-to-point traffic).
+    pub head: Option<f64>,
     /// The point-to-point messages and bytes of the busiest rank (sent and
     /// received).
     pub messages: f64,
@@ -181,15 +219,19 @@ pub fn intervals(steps: &[Vec<SyncStep>]) -> Result<Vec<Interval>, String> {
                 break;
             }
             out[k].work[r] += s.work_ns as f64 * 1e-9;
-            if s.collective {
-                out[k].gathered += s.sent.iter().map(|&(_, b)| b as f64).sum::<f64>();
-                k += 1;
-            } else {
+            if !s.collective || s.head_bytes.is_some() {
                 let moved = s.sent.iter().chain(&s.received);
                 for &(_, b) in moved {
                     traffic[k][r].0 += 1.0;
                     traffic[k][r].1 += b as f64;
                 }
+            }
+            if s.collective {
+                match s.head_bytes {
+                    Some(h) => out[k].head = Some(h as f64),
+                    None => out[k].gathered += s.sent.iter().map(|&(_, b)| b as f64).sum::<f64>(),
+                }
+                k += 1;
             }
         }
     }
@@ -285,7 +327,10 @@ pub fn project(
             for (k, &(a, b)) in model.iter().enumerate() {
                 let iv = &at_largest[k];
                 work += a + b / r as f64;
-                gather += net.all_gather(r, iv.gathered);
+                gather += match iv.head {
+                    Some(h) => net.all_to_all_heads(r, h),
+                    None => net.all_gather(r, iv.gathered),
+                };
                 if r > 1 && iv.messages > 0.0 {
                     let shrink = (largest as f64 / r as f64).sqrt();
                     let per = iv.bytes * shrink / iv.messages;
@@ -316,6 +361,7 @@ mod tests {
         SyncStep {
             work_ns: work_us * 1000,
             collective,
+            head_bytes: None,
             sent: sent.to_vec(),
             received: received.to_vec(),
         }
@@ -357,6 +403,33 @@ mod tests {
         let arrive = 50e-6 + 0.5e-6 + 1e-6 + 1e-6;
         let expected = arrive + 0.5e-6 + (1e-6 + 1e-6);
         assert!((t - expected).abs() < 1e-12, "{t} vs {expected}");
+    }
+
+    #[test]
+    fn an_all_to_all_waits_for_the_last_rank_then_moves_heads_and_parts() {
+        // Rank 0 works 20 µs and sends rank 1 500 bytes; rank 1 works 30 µs
+        // and sends nothing; heads of 16 bytes.
+        let a2a = |work, sent: &[(u32, u64)], received: &[(u32, u64)]| SyncStep {
+            head_bytes: Some(16),
+            ..step(work, true, sent, received)
+        };
+        let steps = vec![
+            vec![a2a(20, &[(1, 500)], &[])],
+            vec![a2a(30, &[], &[(0, 500)])],
+        ];
+        let t = replay(&steps, &NET).unwrap();
+        // One round of heads (L + 2o, and 16 bytes from the peer), then a
+        // message of 500 bytes: its overhead on each side, L and its bytes.
+        let heads = (1e-6 + 1e-6) + 1e-9 * 16.0;
+        let parts = 0.5e-6 + 1e-6 + 1e-9 * 500.0;
+        let expected = 30e-6 + heads + parts;
+        assert!((t - expected).abs() < 1e-12, "{t} vs {expected}");
+        // The interval holds the head, and the parts as the busiest
+        // rank's traffic.
+        let iv = intervals(&steps).unwrap();
+        assert_eq!(iv[0].head, Some(16.0));
+        assert_eq!((iv[0].messages, iv[0].bytes), (1.0, 500.0));
+        assert_eq!(iv[0].gathered, 0.0);
     }
 
     #[test]

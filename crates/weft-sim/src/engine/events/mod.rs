@@ -12,8 +12,9 @@
 //! segment only penalty layers fire, and their work splits into contact
 //! islands ([`crate::islands`]) that share no dynamic vertex: each island
 //! runs its own batches ([`island`]), all islands at once on the executor
-//! (over ranks: placed largest first on the least-loaded rank, their results
-//! handed to every rank in one collective). Then the internal tick
+//! (over ranks: placed largest first near the owners of their vertices,
+//! each rank handed only what it keeps of their results, in one all-to-all).
+//! Then the internal tick
 //! ([`internal`]) folds the internal forces and, after them, each island's
 //! kicks at that tick. Every vertex folds the same kicks in the same order as
 //! one global schedule of batches would: the same bits.
@@ -170,17 +171,30 @@ fn largest_first(costs: &[f64]) -> Vec<u32> {
     order
 }
 
-/// Places items of the given costs on `ranks` ranks, largest first on the
-/// least-loaded rank (ties: the lower rank); returns each item's rank.
-/// Depends on the costs only, so every rank places alike.
-fn place_largest_first(costs: &[f64], ranks: usize) -> Vec<u32> {
+/// How far above the mean load a rank may be filled with items at home
+/// ([`place_near_home`]).
+const HOME_SLACK: f64 = 0.1;
+
+/// Places items of the given costs on `ranks` ranks, largest first (the
+/// locality-aware balancing of the paper's Algorithm 2): on the item's
+/// `home` rank (where most of what it reads and writes lives) while that
+/// keeps the home within [`HOME_SLACK`] of the mean load, else on the
+/// least-loaded rank (ties: the lower rank). Returns each item's rank.
+/// Depends on the costs and homes only, so every rank places alike.
+fn place_near_home(costs: &[f64], home: &[u32], ranks: usize) -> Vec<u32> {
     let mut load = vec![0.0f64; ranks.max(1)];
+    let limit = costs.iter().sum::<f64>() / load.len() as f64 * (1.0 + HOME_SLACK);
     let mut owner = vec![0u32; costs.len()];
     for k in largest_first(costs) {
-        let r = (0..load.len())
-            .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
-            .expect("a rank");
-        load[r] += costs[k as usize];
+        let (c, h) = (costs[k as usize], home[k as usize] as usize);
+        let r = if load[h] + c <= limit {
+            h
+        } else {
+            (0..load.len())
+                .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
+                .expect("a rank")
+        };
+        load[r] += c;
         owner[k as usize] = r as u32;
     }
     owner
@@ -234,8 +248,8 @@ impl<E: Executor> Engine<E> {
                 break;
             }
             segments += 1;
-            let outputs = self.run_islands(&layer_consts, (s, e), internal)?;
-            if let Some(blew_up) = self.apply_islands(&outputs, t0, &mut counts)? {
+            let (outputs, totals) = self.run_islands(&layer_consts, (s, e), internal)?;
+            if let Some(blew_up) = self.apply_islands(&outputs, &totals, t0, &mut counts)? {
                 // A speculative pass that blew up in an island (typically a
                 // stencil pushed through too few layers): that island
                 // stopped before writing a non-finite value, the others
@@ -320,7 +334,24 @@ impl<E: Executor> Engine<E> {
         ws.island_cost = (0..packs.len())
             .map(|k| packs.stencils_of(k).len() as f64)
             .collect();
-        ws.island_rank = place_largest_first(&ws.island_cost, self.exec.ranks());
+        ws.island_rank = match &self.share {
+            None => vec![0; packs.len()],
+            Some(share) => {
+                // Each unit's home: the rank owning most of its vertices.
+                let home: Vec<u32> = (0..packs.len())
+                    .map(|k| {
+                        let mut votes = vec![0usize; share.ranks];
+                        for &i in packs.vertices_of(k) {
+                            votes[share.owner[i as usize] as usize] += 1;
+                        }
+                        (0..share.ranks)
+                            .max_by(|&a, &b| votes[a].cmp(&votes[b]).then(b.cmp(&a)))
+                            .expect("a rank") as u32
+                    })
+                    .collect();
+                place_near_home(&ws.island_cost, &home, share.ranks)
+            }
+        };
         // Each rank builds the islands placed on it (they run there for the
         // whole pass; the others' results arrive with every segment).
         let me = self.exec.rank() as u32;
@@ -343,41 +374,46 @@ impl<E: Executor> Engine<E> {
 
     /// Every island's segment `[s, e)` (and its kicks at the internal tick
     /// `e` when `internal`), in parallel, in bins balanced by the seconds
-    /// each island's last segment took; over ranks each island runs on its
-    /// rank and every rank gets every result (one collective). Results in
-    /// island order.
+    /// each island's last segment took. On one memory: every island's
+    /// output, in island order. Over ranks each island runs on its rank,
+    /// which keeps its output whole and hands each other rank, in one
+    /// all-to-all, only what that rank keeps of it ([`Self::address`]):
+    /// this rank's islands' outputs in island order, then one part from
+    /// each peer that sent one, in rank order. With them, the totals every
+    /// rank agrees on.
     fn run_islands(
         &mut self,
         layer_consts: &[(f64, f64, Tick)],
         (s, e): (Tick, Tick),
         internal: bool,
-    ) -> Result<Vec<SegmentOutput>, SimError> {
+    ) -> Result<(Vec<SegmentOutput>, SegmentTotals), SimError> {
         let n = self.ws.islands.len();
         if n == 0 {
-            return Ok(Vec::new());
+            return Ok((Vec::new(), SegmentTotals::default()));
         }
         let _span = trace::span_with("islands", "islands", n as u64);
-        // Bins of islands: each rank's islands dealt largest first (by the
-        // seconds of their last segment) to the least-loaded of its bins, so
-        // a few tasks carry the many small islands (a task per island would
-        // cost more than most islands do).
-        let ranks = self.exec.ranks();
+        // Bins of this rank's islands, dealt largest first (by the seconds
+        // of their last segment) to the least-loaded bin, so a few tasks
+        // carry the many small islands (a task per island would cost more
+        // than most islands do).
+        let (ranks, me) = (self.exec.ranks(), self.exec.rank() as u32);
         let per_rank = if ranks == 1 {
             BINS_PER_THREAD * self.exec.threads_per_rank().max(1)
         } else {
             BINS_PER_RANK
         };
-        let mut bins: Vec<Vec<u32>> = vec![Vec::new(); ranks * per_rank];
-        let mut load = vec![0.0f64; bins.len()];
+        let mut bins: Vec<Vec<u32>> = vec![Vec::new(); per_rank];
+        let mut load = vec![0.0f64; per_rank];
         for k in largest_first(&self.ws.island_cost) {
-            let r = self.ws.island_rank[k as usize] as usize;
-            let b = (r * per_rank..(r + 1) * per_rank)
+            if self.ws.island_rank[k as usize] != me {
+                continue;
+            }
+            let b = (0..per_rank)
                 .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
                 .expect("a bin");
             load[b] += self.ws.island_cost[k as usize].max(1e-9);
             bins[b].push(k);
         }
-        let owner: Vec<u32> = (0..bins.len()).map(|b| (b / per_rank) as u32).collect();
         let shared = Shared {
             world: &self.world,
             layer_consts,
@@ -385,7 +421,7 @@ impl<E: Executor> Engine<E> {
             pass_end: self.ws.pass_end,
         };
         let (islands, exec) = (&self.ws.islands, &self.exec);
-        let binned = self.exec.map_on_ranks(bins.len(), &owner, &|b| {
+        let binned = self.exec.map(bins.len(), &|b| {
             let _span = trace::span_with("island task", "islands", bins[b].len() as u64);
             (bins[b].iter())
                 .map(|&k| {
@@ -393,36 +429,113 @@ impl<E: Executor> Engine<E> {
                     island.run_segment(exec, &shared, (s, e), internal)
                 })
                 .collect::<Vec<_>>()
-        })?;
-        let mut outputs = vec![SegmentOutput::default(); n];
-        for (k, output) in bins.into_iter().flatten().zip(binned.into_iter().flatten()) {
-            self.ws.island_cost[k as usize] = output.seconds;
-            outputs[k as usize] = output;
+        });
+        let mut mine: Vec<(u32, SegmentOutput)> = bins
+            .into_iter()
+            .flatten()
+            .zip(binned.into_iter().flatten())
+            .collect();
+        mine.sort_unstable_by_key(|m| m.0);
+        for (k, output) in &mine {
+            self.ws.island_cost[*k as usize] = output.seconds;
         }
-        Ok(outputs)
+        let outputs: Vec<SegmentOutput> = mine.into_iter().map(|m| m.1).collect();
+        let totals = SegmentTotals::of(&outputs);
+        if ranks == 1 {
+            return Ok((outputs, totals));
+        }
+        let parts = self.address(&outputs);
+        let (heads, received) = self.exec.all_to_all(totals.words(), parts)?;
+        let mut all = SegmentTotals::default();
+        for (j, head) in heads.iter().enumerate() {
+            let theirs = SegmentTotals::from_words(head).ok_or_else(|| {
+                SimError::Ranks(crate::executor::CommError(format!(
+                    "rank {me}: rank {j} sent a malformed segment head"
+                )))
+            })?;
+            all.add(&theirs);
+        }
+        let mut outputs = outputs;
+        outputs.extend(
+            (received.into_iter().enumerate())
+                .filter(|(j, _)| *j != me as usize)
+                .filter_map(|(_, part)| part),
+        );
+        Ok((outputs, all))
     }
 
-    /// Applies the islands' segment results in island order: their vertices'
-    /// new states, their breakpoints (the budget checked), their counts.
-    /// Returns the blow-up to report (the earliest, then the lowest vertex)
-    /// if an island stopped at one.
+    /// Over ranks: what each rank keeps of this rank's islands' `outputs`
+    /// (one part per rank, `None` where nothing; this rank's own `None`):
+    /// the new states of the vertices it keeps current through the pass (it
+    /// owns them, or a partition placed on it reads them), and the
+    /// breakpoints and the kicks at the internal tick of those it owns (it
+    /// holds their trajectories and folds their velocities). The islands'
+    /// vertices are disjoint, so each part keeps each vertex's entries in
+    /// their order.
+    fn address(&self, outputs: &[SegmentOutput]) -> Vec<Option<SegmentOutput>> {
+        let share = self.share.as_ref().expect("over ranks");
+        let me = share.rank as u32;
+        let mut parts: Vec<SegmentOutput> = vec![SegmentOutput::default(); share.ranks];
+        for out in outputs {
+            for m in &out.moved {
+                let i = m.0 as usize;
+                let owner = share.owner[i];
+                let readers = share.readers(i).iter().copied();
+                for r in std::iter::once(owner).chain(readers) {
+                    if r != me {
+                        parts[r as usize].moved.push(*m);
+                    }
+                }
+            }
+            for b in &out.breakpoints {
+                let owner = share.owner[b.0 as usize];
+                if owner != me {
+                    parts[owner as usize].breakpoints.push(*b);
+                }
+            }
+            for k in &out.at_internal {
+                let owner = share.owner[k.0 as usize];
+                if owner != me {
+                    parts[owner as usize].at_internal.push(*k);
+                }
+            }
+        }
+        parts
+            .into_iter()
+            .map(|p| {
+                let empty = p.moved.is_empty() && p.breakpoints.is_empty();
+                (!(empty && p.at_internal.is_empty())).then_some(p)
+            })
+            .collect()
+    }
+
+    /// Applies the islands' segment results: their vertices' new states and
+    /// their breakpoints, each as present here (over ranks: what this rank
+    /// keeps), the budget checked against `totals` (every rank's). Returns
+    /// the blow-up to report (the earliest, then the lowest vertex) if an
+    /// island stopped at one.
     fn apply_islands(
         &mut self,
         outputs: &[SegmentOutput],
+        totals: &SegmentTotals,
         t0: Tick,
         counts: &mut PassCounts,
     ) -> Result<Option<SimError>, SimError> {
         let _span = trace::span("islands merge");
         let w = &mut self.world;
-        let mut blew_up: Option<(Tick, u32)> = None;
-        // The breakpoints go to their vertices' runs, each run's in island
+        // Every breakpoint of an island adds one to its vertex's polyline
+        // (it is later than the vertex's last: no island batch falls on the
+        // pass's first tick, an internal tick), so `totals.breakpoints` is
+        // what the budget gains on every rank.
+        let count = totals.breakpoints as usize;
+        if count > 0 && !self.traj.fits(count) {
+            return Err(budget_error(w, t0, self.traj.over_budget(count)));
+        }
+        // The breakpoints go to their vertices' runs, each run's in output
         // order (a vertex's are all one island's, in time order), and the
-        // runs record them on the executor. Near the budget they are
-        // recorded one by one instead, so the error names the breakpoint
-        // that broke it.
-        let count: usize = outputs.iter().map(|o| o.breakpoints.len()).sum();
-        let parallel = count > 0 && self.traj.fits(count);
-        if parallel {
+        // runs record them on the executor.
+        let present: usize = outputs.iter().map(|o| o.breakpoints.len()).sum();
+        if present > 0 {
             let runs = &self.ws.vertex_runs;
             let all = outputs.iter().flat_map(|out| &out.breakpoints);
             let breakpoints = all.map(|&(i, t, x)| (i, (t, x)));
@@ -436,9 +549,11 @@ impl<E: Executor> Engine<E> {
                     .count();
                 added.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
             });
-            drop(record);
+            debug_assert!(self.share.is_some() || added.into_inner() == count);
+        }
+        if count > 0 {
             self.traj
-                .add_recorded(added.into_inner())
+                .add_recorded(count)
                 .map_err(|e| budget_error(w, t0, e))?;
         }
         for out in outputs {
@@ -446,25 +561,95 @@ impl<E: Executor> Engine<E> {
                 let i = i as usize;
                 (w.x[i], w.v[i], w.tau[i]) = (x, v, tau);
             }
-            if !parallel {
-                for &(i, t, x) in &out.breakpoints {
-                    self.traj
-                        .record(i as usize, t, x)
-                        .map_err(|e| budget_error(w, t0, e))?;
-                }
-            }
-            counts.layer_evaluations += out.evaluations;
-            counts.layer_kicks += out.kicks;
-            counts.min_separation = counts.min_separation.min(out.min_separation);
-            if let Some(b) = out.blew_up {
-                blew_up = Some(blew_up.map_or(b, |a| a.min(b)));
-            }
         }
-        Ok(blew_up.map(|(t, i)| SimError::NonFinite {
+        counts.layer_evaluations += totals.evaluations;
+        counts.layer_kicks += totals.kicks;
+        counts.min_separation = counts.min_separation.min(totals.min_separation);
+        Ok(totals.blew_up.map(|(t, i)| SimError::NonFinite {
             place: w.place(i),
             vertex: i,
             time: w.lattice.seconds(t),
         }))
+    }
+}
+
+/// What every rank agrees on of a segment's islands: their counts summed,
+/// the smallest distance, the earliest blow-up (then the lowest vertex) and
+/// their breakpoints, over every rank's islands.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct SegmentTotals {
+    evaluations: u64,
+    kicks: u64,
+    min_separation: f64,
+    blew_up: Option<(Tick, u32)>,
+    breakpoints: u64,
+}
+
+/// No island: nothing counted, no distance seen.
+impl Default for SegmentTotals {
+    fn default() -> Self {
+        SegmentTotals {
+            evaluations: 0,
+            kicks: 0,
+            min_separation: f64::INFINITY,
+            blew_up: None,
+            breakpoints: 0,
+        }
+    }
+}
+
+impl SegmentTotals {
+    /// The totals of `outputs` (in their order).
+    fn of(outputs: &[SegmentOutput]) -> Self {
+        let mut totals = SegmentTotals::default();
+        for out in outputs {
+            totals.add(&SegmentTotals {
+                evaluations: out.evaluations,
+                kicks: out.kicks,
+                min_separation: out.min_separation,
+                blew_up: out.blew_up,
+                breakpoints: out.breakpoints.len() as u64,
+            });
+        }
+        totals
+    }
+
+    fn add(&mut self, other: &SegmentTotals) {
+        self.evaluations += other.evaluations;
+        self.kicks += other.kicks;
+        self.min_separation = self.min_separation.min(other.min_separation);
+        if let Some(b) = other.blew_up {
+            self.blew_up = Some(self.blew_up.map_or(b, |a| a.min(b)));
+        }
+        self.breakpoints += other.breakpoints;
+    }
+
+    /// As the words of an all-to-all's head (no blow-up: a tick of all
+    /// ones).
+    fn words(&self) -> Vec<u64> {
+        let (t, i) = self.blew_up.unwrap_or((Tick::MAX, 0));
+        let min = self.min_separation.to_bits();
+        vec![
+            self.evaluations,
+            self.kicks,
+            min,
+            t,
+            i.into(),
+            self.breakpoints,
+        ]
+    }
+
+    fn from_words(w: &[u64]) -> Option<Self> {
+        let &[evaluations, kicks, min, t, i, breakpoints] = w else {
+            return None;
+        };
+        Some(SegmentTotals {
+            evaluations,
+            kicks,
+            min_separation: f64::from_bits(min),
+            blew_up: (t != Tick::MAX).then_some((t, u32::try_from(i).ok()?)),
+            breakpoints,
+        })
     }
 }
 
@@ -495,8 +680,13 @@ mod tests {
     fn largest_first_balances_and_is_deterministic() {
         let costs = [1.0, 5.0, 3.0, 3.0, 0.5];
         assert_eq!(largest_first(&costs), vec![1, 2, 3, 0, 4]);
-        // 5 → rank 0; 3, 3 → rank 1; 1 → rank 0 (5 < 6); 0.5 → rank 0 (6 = 6).
-        assert_eq!(place_largest_first(&costs, 2), vec![0, 0, 1, 1, 0]);
-        assert_eq!(place_largest_first(&[1.0, 2.0], 1), vec![0, 0]);
+        // All at home on rank 0: the limit is 1.1 × 12.5 / 2 = 6.875; 5 →
+        // 0; 3 → 1 (8 > limit); 3 → 1 (3 < 5); 1 → 0 (6); 0.5 → 0 (6.5).
+        assert_eq!(place_near_home(&costs, &[0; 5], 2), vec![0, 0, 1, 1, 0]);
+        // Each at its own home while it fits: 5 → 0; 3 → 1; 3 (home 0: 8 >
+        // limit) → 1, the least loaded; 1 (home 1: 7 > limit) → 0; 0.5 → 1.
+        let home = [1, 0, 1, 0, 1];
+        assert_eq!(place_near_home(&costs, &home, 2), vec![0, 0, 1, 1, 1]);
+        assert_eq!(place_near_home(&[1.0, 2.0], &[0, 0], 1), vec![0, 0]);
     }
 }
