@@ -223,6 +223,19 @@ impl BroadPhase {
             last_trees,
         } = self;
 
+        if exec.ranks() > 1 && !label_ranks.is_empty() && groups.len() > 1 {
+            let input = Input {
+                triangles,
+                inv_mass,
+                traj,
+                inflate,
+            };
+            let found = spread_candidates(exec, groups, label_ranks, &input, vertex_dops, bounds)?;
+            (*last_trees, *last_pairs, *last_group_pairs) =
+                (found.trees, found.pairs, found.group_pairs);
+            return Ok(found.keys);
+        }
+
         // Vertex DOPs: every breakpoint of the vertex in the window. Over
         // ranks each vertex's DOP is computed by the rank that holds its
         // breakpoints (the one step that reads them all), and every rank gets
@@ -248,12 +261,6 @@ impl BroadPhase {
             inflate,
             exact_unions: !vd.iter().any(|d| d[0].is_empty()),
         };
-        if exec.ranks() > 1 && !label_ranks.is_empty() && groups.len() > 1 {
-            let found = spread_candidates(exec, groups, label_ranks, &filter, bounds)?;
-            (*last_trees, *last_pairs, *last_group_pairs) =
-                (found.trees, found.pairs, found.group_pairs);
-            return Ok(found.keys);
-        }
 
         // Triangle DOPs: the union of the corners', inflated.
         tri_dops.resize(triangles.len(), Dop26::empty());
@@ -329,33 +336,64 @@ fn merge(outs: Vec<TaskOut>) -> Found {
     }
 }
 
+/// What the spread broad phase reads of the window.
+struct Input<'a> {
+    triangles: &'a [[u32; 3]],
+    inv_mass: &'a [f64],
+    traj: &'a Trajectories,
+    inflate: f64,
+}
+
+impl<'a> Input<'a> {
+    /// The filter over `vertex_dops`.
+    fn filter(&self, vertex_dops: &'a [[Dop26; 2]], exact_unions: bool) -> Filter<'a> {
+        Filter {
+            triangles: self.triangles,
+            inv_mass: self.inv_mass,
+            vertex_dops,
+            inflate: self.inflate,
+            exact_unions,
+        }
+    }
+}
+
+/// A vertex DOP as it travels: the vertex and its raw DOP.
+type VertexDop = (u32, Dop26);
+
 /// The broad phase spread over ranks ([`BroadPhase::spread`]).
 ///
-/// 1. Each rank computes the leaves and the tree of its own groups.
-/// 2. The window hulls (each group's root bound) and kinematic flags are
+/// 1. Each rank computes the DOPs of the vertices whose breakpoints it
+///    holds, and sends each rank those of its vertices that rank's own
+///    groups' triangles use (an all-to-all; whether any DOP is empty travels
+///    in its head, so every rank filters alike).
+/// 2. Each rank computes the leaves and the tree of its own groups.
+/// 3. The window hulls (each group's root bound) and kinematic flags are
 ///    all-gathered: every rank finds the same overlapping pairs.
-/// 3. Each traversal — a group with itself, or an overlapping pair — runs
+/// 4. Each traversal — a group with itself, or an overlapping pair — runs
 ///    whole on one rank: a group's self-traversal on its rank; a pair on the
 ///    rank of its dynamic side if the other is kinematic (the obstacles pair
 ///    with many groups), else on the rank of `a` or `b` by the parity of
-///    `a + b`. That rank computes the other side's leaves and tree too, from
-///    the all-gathered vertex DOPs (with state owned by ranks these leaves
-///    would travel point to point instead).
-/// 4. The traversals' keys reach every rank, as on one memory.
+///    `a + b`. Every rank knows every traversal's rank, so the holders send
+///    a traversal's rank the DOPs of the other side's vertices point to
+///    point (an all-to-all), and it computes that side's leaves and tree.
+/// 5. The traversals' keys reach every rank, as on one memory.
 ///
 /// A rank so computes the trees of its own groups and their overlapping
-/// neighbours', not all of them. The candidates are the same set: the pairs
-/// of overlapping hulls and the leaves of each tree are those of one memory,
-/// whoever computes them.
+/// neighbours', not all of them, and receives only the vertex DOPs those
+/// read. The candidates are the same set: the pairs of overlapping hulls
+/// and the leaves of each tree are those of one memory, whoever computes
+/// them. A rank's `vertex_dops` hold this pass's DOP only for the vertices
+/// it holds or received; the others are never read.
 fn spread_candidates<E: Executor>(
     exec: &E,
     groups: &mut [Group],
     label_ranks: &[u32],
-    filter: &Filter,
+    input: &Input<'_>,
+    vertex_dops: &mut Vec<[Dop26; 2]>,
     bounds: &mut Vec<usize>,
 ) -> Result<Found, CommError> {
-    let me = exec.rank() as u32;
-    let last = exec.ranks() as u32 - 1;
+    let (me, ranks) = (exec.rank() as u32, exec.ranks());
+    let last = ranks as u32 - 1;
     let rank: Vec<u32> = (groups.iter())
         .map(|g| {
             label_ranks
@@ -365,14 +403,61 @@ fn spread_candidates<E: Executor>(
                 .min(last)
         })
         .collect();
-    let direct = |t: u32| filter.leaf(filter.triangles[t as usize]);
-    bounds.clear();
-    bounds.extend(0..=groups.len());
-    exec.for_each_chunk(groups, bounds, &|g, chunk: &mut [Group]| {
-        if rank[g] == me {
-            chunk[0].update(filter, direct);
+    let (traj, triangles) = (input.traj, input.triangles);
+    // 1. The held vertices' DOPs, then those the own groups use.
+    let n = traj.len();
+    vertex_dops.resize(n, [Dop26::empty(); 2]);
+    runs(n, bounds);
+    let inflate = input.inflate;
+    let both = |raw: Dop26| {
+        let mut inflated = raw;
+        inflated.inflate(inflate);
+        [raw, inflated]
+    };
+    exec.for_each_chunk(vertex_dops, bounds, &|k, chunk: &mut [[Dop26; 2]]| {
+        for (j, d) in chunk.iter_mut().enumerate() {
+            let i = k * RUN + j;
+            if traj.holds(i) {
+                *d = both(Dop26::from_points(traj.of(i).points.iter().copied()));
+            } else if cfg!(debug_assertions) {
+                // What no one sends must not be read: an empty DOP here
+                // would change the leaves (the tests would see it).
+                *d = [Dop26::empty(); 2];
+            }
         }
     });
+    let held_empty = (0..n).any(|i| traj.holds(i) && vertex_dops[i][0].is_empty());
+    // The DOPs this rank holds of the vertices of a group's triangles, to `r`.
+    let send_group = |sends: &mut [Vec<u32>], group: &Group, r: u32| {
+        for &t in &group.members {
+            for &v in &triangles[t as usize] {
+                if traj.holds(v as usize) {
+                    sends[r as usize].push(v);
+                }
+            }
+        }
+    };
+    let mut sends = vec![Vec::new(); ranks];
+    for g in 0..groups.len() {
+        if rank[g] != me {
+            send_group(&mut sends, &groups[g], rank[g]);
+        }
+    }
+    let heads = deliver_dops(exec, vec![u64::from(held_empty)], sends, vertex_dops, &both)?;
+    let exact_unions = !heads.iter().any(|h| h.first() != Some(&0));
+    // 2. The own groups' trees.
+    {
+        let filter = input.filter(vertex_dops, exact_unions);
+        let direct = |t: u32| filter.leaf(filter.triangles[t as usize]);
+        bounds.clear();
+        bounds.extend(0..=groups.len());
+        exec.for_each_chunk(groups, bounds, &|g, chunk: &mut [Group]| {
+            if rank[g] == me {
+                chunk[0].update(&filter, direct);
+            }
+        });
+    }
+    // 3. The hulls.
     let gathered = {
         let groups: &[Group] = groups;
         exec.map_on_ranks(groups.len(), &rank, &|g| {
@@ -382,7 +467,7 @@ fn spread_candidates<E: Executor>(
     let hulls: Vec<Dop26> = gathered.iter().map(|h| h.0).collect();
     let kinematic: Vec<bool> = gathered.iter().map(|h| h.1).collect();
     let group_pairs = overlapping_pairs(&hulls);
-    // The traversals: (a, b), a == b for a group with itself, and the rank
+    // 4. The traversals: (a, b), a == b for a group with itself, and the rank
     // each runs on.
     let mut items: Vec<(u32, u32)> = Vec::new();
     let mut owner: Vec<u32> = Vec::new();
@@ -405,23 +490,39 @@ fn spread_candidates<E: Executor>(
         items.push((a, b));
         owner.push(rank[side as usize]);
     }
-    // The other sides of this rank's traversals.
+    // The other sides of each rank's traversals: the holders send their
+    // vertices' DOPs there, and this rank computes the leaves and trees of
+    // its own traversals' other sides.
     let mut needed = vec![false; groups.len()];
+    let mut sends = vec![Vec::new(); ranks];
+    let mut sent = std::collections::BTreeSet::new();
     for (&(a, b), &r) in items.iter().zip(&owner) {
-        if r == me {
-            needed[a as usize] = true;
-            needed[b as usize] = true;
+        for g in [a, b] {
+            if rank[g as usize] == r {
+                continue;
+            }
+            if r == me {
+                needed[g as usize] = true;
+            } else if sent.insert((r, g)) {
+                send_group(&mut sends, &groups[g as usize], r);
+            }
         }
     }
+    deliver_dops(exec, Vec::new(), sends, vertex_dops, &both)?;
+    let filter = input.filter(vertex_dops, exact_unions);
+    let direct = |t: u32| filter.leaf(filter.triangles[t as usize]);
+    bounds.clear();
+    bounds.extend(0..=groups.len());
     exec.for_each_chunk(groups, bounds, &|g, chunk: &mut [Group]| {
-        if needed[g] && rank[g] != me {
-            chunk[0].update(filter, direct);
+        if needed[g] {
+            chunk[0].update(&filter, direct);
         }
     });
     let trees = (0..groups.len())
         .filter(|&g| rank[g] == me || needed[g])
         .count();
     let groups: &[Group] = groups;
+    let filter = &filter;
     let outs = exec.map_on_ranks(items.len(), &owner, &|k| {
         let (a, b) = items[k];
         let (ga, gb) = (&groups[a as usize], &groups[b as usize]);
@@ -439,6 +540,41 @@ fn spread_candidates<E: Executor>(
         group_pairs,
         ..merge(outs)
     })
+}
+
+/// **Collective** (an all-to-all): sends each rank `r` the raw DOPs of the
+/// vertices `sends[r]` (held here; deduplicated here), with `head` to every
+/// rank, and stores the DOPs received (raw and inflated, `both`) in
+/// `vertex_dops`. Returns every rank's head.
+fn deliver_dops<E: Executor>(
+    exec: &E,
+    head: Vec<u64>,
+    sends: Vec<Vec<u32>>,
+    vertex_dops: &mut [[Dop26; 2]],
+    both: &dyn Fn(Dop26) -> [Dop26; 2],
+) -> Result<Vec<Vec<u64>>, CommError> {
+    let me = exec.rank();
+    let parts: Vec<Option<Vec<VertexDop>>> = (sends.into_iter().enumerate())
+        .map(|(r, mut list)| {
+            list.sort_unstable();
+            list.dedup();
+            let dops = list.iter().map(|&v| (v, vertex_dops[v as usize][0]));
+            (r != me && !list.is_empty()).then(|| dops.collect())
+        })
+        .collect();
+    let (heads, received) = exec.all_to_all(head, parts)?;
+    for (r, part) in received.into_iter().enumerate() {
+        if r == me {
+            continue;
+        }
+        for (v, raw) in part.into_iter().flatten() {
+            let d = vertex_dops.get_mut(v as usize).ok_or_else(|| {
+                CommError(format!("rank {me}: rank {r} sent the DOP of vertex {v}, past the end"))
+            })?;
+            *d = both(raw);
+        }
+    }
+    Ok(heads)
 }
 
 impl Group {
