@@ -144,7 +144,9 @@ fn spread_ranks_build_their_neighbourhood_and_match_serial() {
                 // Each rank holds a scattered share of the vertices' breakpoints
                 // (their DOPs travel to the ranks whose trees read them).
                 let mut traj = traj.clone();
-                let holder = (0..traj.len()).map(|i| ((i * 7 + 3) % ranks) as u32).collect();
+                let holder = (0..traj.len())
+                    .map(|i| ((i * 7 + 3) % ranks) as u32)
+                    .collect();
                 traj.hold_only(holder, exec.rank() as u32);
                 let mut bp = BroadPhase::grouped(&labels);
                 bp.spread((0..groups).map(|g| (g * ranks / groups) as u32).collect());

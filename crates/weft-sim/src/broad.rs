@@ -58,7 +58,8 @@
 //! Over ranks with the groups placed ([`BroadPhase::spread`]), each rank
 //! builds only its own groups' trees, the window hulls are all-gathered,
 //! and each traversal runs whole on one rank, which builds the other side's
-//! tree too (`spread_candidates`).
+//! tree too (`spread_candidates`); the vertex DOPs travel point to point from
+//! the ranks holding the vertices to those whose trees read them.
 //!
 //! Which task finds a pair, and in which order tasks run, changes nothing: the
 //! result is the sorted set of keys, the same on every executor, for every
@@ -569,7 +570,9 @@ fn deliver_dops<E: Executor>(
         }
         for (v, raw) in part.into_iter().flatten() {
             let d = vertex_dops.get_mut(v as usize).ok_or_else(|| {
-                CommError(format!("rank {me}: rank {r} sent the DOP of vertex {v}, past the end"))
+                CommError(format!(
+                    "rank {me}: rank {r} sent the DOP of vertex {v}, past the end"
+                ))
             })?;
             *d = both(raw);
         }
