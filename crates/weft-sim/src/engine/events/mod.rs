@@ -179,8 +179,10 @@ const HOME_SLACK: f64 = 0.1;
 /// locality-aware balancing of the paper's Algorithm 2): on the item's
 /// `home` rank (where most of what it reads and writes lives) while that
 /// keeps the home within [`HOME_SLACK`] of the mean load, else on the
-/// least-loaded rank (ties: the lower rank). Returns each item's rank.
-/// Depends on the costs and homes only, so every rank places alike.
+/// least-loaded rank (ties: the home, then the lower rank; so an island
+/// larger than the limit still goes home while every rank is empty).
+/// Returns each item's rank. Depends on the costs and homes only, so every
+/// rank places alike.
 fn place_near_home(costs: &[f64], home: &[u32], ranks: usize) -> Vec<u32> {
     let mut load = vec![0.0f64; ranks.max(1)];
     let limit = costs.iter().sum::<f64>() / load.len() as f64 * (1.0 + HOME_SLACK);
@@ -190,8 +192,12 @@ fn place_near_home(costs: &[f64], home: &[u32], ranks: usize) -> Vec<u32> {
         let r = if load[h] + c <= limit {
             h
         } else {
+            let key = |r: usize| (load[r], r != h, r);
             (0..load.len())
-                .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
+                .min_by(|&a, &b| {
+                    let (ka, kb) = (key(a), key(b));
+                    ka.0.total_cmp(&kb.0).then((ka.1, ka.2).cmp(&(kb.1, kb.2)))
+                })
                 .expect("a rank")
         };
         load[r] += c;
@@ -688,5 +694,7 @@ mod tests {
         let home = [1, 0, 1, 0, 1];
         assert_eq!(place_near_home(&costs, &home, 2), vec![0, 0, 1, 1, 1]);
         assert_eq!(place_near_home(&[1.0, 2.0], &[0, 0], 1), vec![0, 0]);
+        // A giant at home on rank 1 stays there while the ranks are empty.
+        assert_eq!(place_near_home(&[9.0, 1.0], &[1, 1], 2), vec![1, 0]);
     }
 }
