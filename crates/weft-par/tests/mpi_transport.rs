@@ -276,6 +276,66 @@ fn exchange_over_mpi_on_three_ranks() {
 }
 
 #[test]
+fn all_to_all_over_mpi_on_three_ranks() {
+    if !is_child() {
+        let run = mpirun("all_to_all_over_mpi_on_three_ranks");
+        assert!(run.status.is_some_and(|s| s.success()), "{}", run.report());
+        for rank in 0..RANKS {
+            assert!(
+                run.stdout
+                    .contains(&format!("rank {rank}/{RANKS}: {ROUNDS} all-to-alls ok")),
+                "rank {rank} did not report\n{}",
+                run.report()
+            );
+        }
+        return;
+    }
+
+    let transport = MpiTransport::init().expect("initialize MPI");
+    let (rank, size) = (transport.rank(), transport.size());
+    let (mut messages, mut bytes) = (0u64, 0u64);
+    for round in 0..ROUNDS {
+        // Each peer its own part (empty ones too, and 1 MB ones over the
+        // rounds), a head of `round % 3` words (none in some rounds), and a
+        // barrier between rounds.
+        let head: Vec<u64> = (0..round % 3)
+            .map(|k| (100 * rank + 10 * round + k) as u64)
+            .collect();
+        let parts: Vec<Vec<u8>> = (0..size).map(|j| message(rank, j, round)).collect();
+        for (j, p) in parts.iter().enumerate() {
+            if j != rank {
+                messages += 1 + u64::from(!p.is_empty());
+                bytes += 8 * (1 + head.len() as u64) + p.len() as u64;
+            }
+        }
+        let (heads, got) = transport.all_to_all(head, parts).expect("all_to_all");
+        assert_eq!((heads.len(), got.len()), (size, size), "round {round}");
+        for j in 0..size {
+            let want: Vec<u64> = (0..round % 3)
+                .map(|k| (100 * j + 10 * round + k) as u64)
+                .collect();
+            assert_eq!(
+                heads[j], want,
+                "rank {rank}, round {round}: rank {j}'s head"
+            );
+            let want = message(j, rank, round);
+            assert!(
+                got[j] == want,
+                "rank {rank}, round {round}: rank {j}'s part differs ({} bytes, want {})",
+                got[j].len(),
+                want.len()
+            );
+        }
+        transport.barrier();
+    }
+    let traffic = transport.traffic();
+    assert_eq!((traffic.messages, traffic.bytes), (messages, bytes));
+    assert_eq!(traffic.collectives, ROUNDS as u64);
+    println!("rank {rank}/{size}: {ROUNDS} all-to-alls ok");
+    drop(transport);
+}
+
+#[test]
 fn abort_on_one_rank_ends_every_rank() {
     if !is_child() {
         let run = mpirun("abort_on_one_rank_ends_every_rank");

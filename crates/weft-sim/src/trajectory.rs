@@ -25,10 +25,12 @@
 //!
 //! Each vertex has a *holder* rank that stores its breakpoints
 //! ([`Trajectories::hold_only`]; on one memory every vertex is held). Every
-//! rank still knows, for every vertex, how many breakpoints it has and when
-//! its last one was (velocities are the same on every rank, so every rank
-//! sees every breakpoint happen): the budget, the statistics and the lengths
-//! of what travels are the same everywhere. A rank that reads a vertex it
+//! rank still knows, between passes, for every vertex, how many breakpoints
+//! it has and when its last one was (within a pass a rank follows only the
+//! vertices it keeps current; the owners' tallies reach every rank at the
+//! pass end, [`Trajectories::set_tally`]), and the total against the budget
+//! at every step: the budget, the statistics and the lengths of what travels
+//! are the same everywhere. A rank that reads a vertex it
 //! does not hold (a narrow-phase or retirement task with a vertex of another
 //! rank's partition) first receives its polyline from the holder into a
 //! per-window cache ([`Trajectories::fetched`]), exactly, bit for bit.

@@ -6,13 +6,14 @@
 //! keeps current only the vertices it owns or reads, `weft_sim::share`) and
 //! runs the engine's control flow; the heavy stages are spread: a rank evaluates the internal forces of
 //! the partitions placed on it, the penalty closest points and kicks of its
-//! block of awake stencils, the broad phase's DOPs of the vertices it holds
-//! and its round-robin share of the traversal tasks, the narrow-phase tasks
+//! contact islands, the broad phase's DOPs of the vertices it holds and the
+//! traversals of its partitions, the narrow-phase tasks
 //! the locality-aware balancer gives it (Algorithm 2 of the paper), and the
 //! retirement certificates of the stencils whose first vertex it holds. The
-//! contact islands' results and the new velocities of an internal tick go
-//! only where they are kept ([`Executor::all_to_all`]); after each other
-//! stage one all-gather hands every rank every result, so every rank
+//! contact islands' results, the new velocities of an internal tick and the
+//! broad phase's vertex DOPs go only where they are read
+//! ([`Executor::all_to_all`]); after each other stage one all-gather hands
+//! every rank every result, so every rank
 //! applies the same values in the same order — and every rank's state, and
 //! the result, has the same bits as on one memory. The exchanges that are not
 //! collectives ([`Executor::exchange_words`], point to point) carry the

@@ -247,9 +247,13 @@ impl Transport for MpiTransport {
     }
 
     /// **Collective**: an `MPI_Ialltoall` of each rank's head and each
-    /// part's length (`1 + head.len()` words to every rank), completed by
-    /// polling, then the non-empty parts point to point (tag
-    /// [`ALL_TO_ALL_TAG`]; their lengths are known to both sides by then).
+    /// part's length (`2 + head.len()` words to every rank: the length, a
+    /// flag, the head), completed by polling, then the non-empty parts point
+    /// to point (tag [`ALL_TO_ALL_TAG`]; their lengths are known to both
+    /// sides by then). A rank whose part is too large for MPI still takes
+    /// part in the dense step, with its flag set: every rank then learns it,
+    /// none posts a part, and all fail alike (a rank that returned early
+    /// would leave the others waiting in the collective).
     fn all_to_all(
         &self,
         head: Vec<u64>,
@@ -266,17 +270,19 @@ impl Transport for MpiTransport {
                 parts.len()
             )));
         }
-        for (j, part) in parts.iter().enumerate() {
-            Count::try_from(part.len()).map_err(|_| {
-                self.failure(format!(
-                    "{} bytes to rank {j}: too large for MPI",
-                    part.len()
-                ))
-            })?;
-        }
-        let words = head.len() + 1;
+        let too_large = parts.iter().position(|p| Count::try_from(p.len()).is_err());
+        let words = head.len() + 2;
         let send: Vec<u64> = (0..size)
-            .flat_map(|j| std::iter::once(parts[j].len() as u64).chain(head.iter().copied()))
+            .flat_map(|j| {
+                let len = if too_large.is_some() {
+                    0
+                } else {
+                    parts[j].len() as u64
+                };
+                [len, u64::from(too_large.is_some())]
+                    .into_iter()
+                    .chain(head.iter().copied())
+            })
             .collect();
         let mut recv = vec![0u64; words * size];
         mpi::request::scope(|scope| {
@@ -286,13 +292,19 @@ impl Transport for MpiTransport {
                     .immediate_all_to_all_into(scope, &send[..], &mut recv[..]);
             self.complete(request);
         });
-        let heads: Vec<Vec<u64>> = recv.chunks_exact(words).map(|c| c[1..].to_vec()).collect();
-        let lens: Vec<usize> = recv.chunks_exact(words).map(|c| c[0] as usize).collect();
-        for (j, &len) in lens.iter().enumerate() {
-            Count::try_from(len).map_err(|_| {
-                self.failure(format!("{len} bytes from rank {j}: too large for MPI"))
-            })?;
+        if let Some(j) = too_large {
+            return Err(self.failure(format!(
+                "{} bytes to rank {j}: too large for MPI",
+                parts[j].len()
+            )));
         }
+        if let Some(j) = recv.chunks_exact(words).position(|c| c[1] != 0) {
+            return Err(self.failure(format!(
+                "rank {j} had a part too large for MPI in an all-to-all"
+            )));
+        }
+        let heads: Vec<Vec<u64>> = recv.chunks_exact(words).map(|c| c[2..].to_vec()).collect();
+        let lens: Vec<usize> = recv.chunks_exact(words).map(|c| c[0] as usize).collect();
         let mut received: Vec<Vec<u8>> = (0..size)
             .map(|j| vec![0u8; if j == me { 0 } else { lens[j] }])
             .collect();
@@ -335,7 +347,8 @@ impl Transport for MpiTransport {
             }
         }
         let peers = size.saturating_sub(1) as u64;
-        self.sent.add(peers, peers * 8 * words as u64);
+        // (Counted as the head and length the channel transport sends.)
+        self.sent.add(peers, peers * 8 * (words as u64 - 1));
         for (j, part) in parts.iter().enumerate() {
             if j != me && !part.is_empty() {
                 self.sent.add(1, part.len() as u64);

@@ -71,14 +71,15 @@ impl Network {
     }
 
     /// A rank's parts of an all-to-all after the heads: `sent` and
-    /// `received` (per peer, bytes), each message paying its overhead and
-    /// the largest direction its bytes.
+    /// `received` (per peer, bytes). As a message (`L + 2o + G b`) per part,
+    /// the rank's parts in flight together: the overheads of the busier
+    /// direction, one latency, and the bytes of the busier direction.
     fn all_to_all_parts(&self, sent: &[(u32, u64)], received: &[(u32, u64)]) -> f64 {
         if sent.is_empty() && received.is_empty() {
             return 0.0;
         }
         let bytes = |v: &[(u32, u64)]| v.iter().map(|&(_, b)| b as f64).sum::<f64>();
-        (sent.len() + received.len()) as f64 * self.overhead
+        2.0 * sent.len().max(received.len()) as f64 * self.overhead
             + self.latency
             + self.seconds_per_byte * bytes(sent).max(bytes(received))
     }
@@ -148,6 +149,13 @@ pub fn replay(steps: &[Vec<SyncStep>], net: &Network) -> Result<f64, String> {
             let mut total = 0.0;
             let mut parts = 0.0f64;
             let mut head = None;
+            let kind = steps[0][at[0]].head_bytes;
+            if (0..n).any(|r| steps[r][at[r]].head_bytes != kind) {
+                return Err(format!(
+                    "the ranks' steps do not form one run (a collective that is an \
+                     all-to-all on some ranks and not on others, at steps {at:?})"
+                ));
+            }
             for r in 0..n {
                 let s = &steps[r][at[r]];
                 start = start.max(t[r] + s.work_ns as f64 * 1e-9);
@@ -212,6 +220,9 @@ pub fn intervals(steps: &[Vec<SyncStep>]) -> Result<Vec<Interval>, String> {
         c
     ];
     let mut traffic = vec![vec![(0.0f64, 0.0f64); n]; c];
+    // Per collective: whether it is an all-to-all (its head's bytes), as the
+    // first rank saw it.
+    let mut kinds: Vec<Option<Option<u64>>> = vec![None; c];
     for (r, rank) in steps.iter().enumerate() {
         let mut k = 0;
         for s in rank {
@@ -227,6 +238,11 @@ pub fn intervals(steps: &[Vec<SyncStep>]) -> Result<Vec<Interval>, String> {
                 }
             }
             if s.collective {
+                if kinds[k].get_or_insert(s.head_bytes) != &s.head_bytes {
+                    return Err(format!(
+                        "collective {k} is an all-to-all on some ranks and not on others"
+                    ));
+                }
                 match s.head_bytes {
                     Some(h) => out[k].head = Some(h as f64),
                     None => out[k].gathered += s.sent.iter().map(|&(_, b)| b as f64).sum::<f64>(),
@@ -421,7 +437,7 @@ mod tests {
         // One round of heads (L + 2o, and 16 bytes from the peer), then a
         // message of 500 bytes: its overhead on each side, L and its bytes.
         let heads = (1e-6 + 1e-6) + 1e-9 * 16.0;
-        let parts = 0.5e-6 + 1e-6 + 1e-9 * 500.0;
+        let parts = 2.0 * 0.5e-6 + 1e-6 + 1e-9 * 500.0;
         let expected = 30e-6 + heads + parts;
         assert!((t - expected).abs() < 1e-12, "{t} vs {expected}");
         // The interval holds the head, and the parts as the busiest
@@ -430,6 +446,13 @@ mod tests {
         assert_eq!(iv[0].head, Some(16.0));
         assert_eq!((iv[0].messages, iv[0].bytes), (1.0, 500.0));
         assert_eq!(iv[0].gathered, 0.0);
+        // An all-to-all on one rank is an all-gather on the other: no run.
+        let mixed = vec![
+            vec![a2a(20, &[(1, 500)], &[])],
+            vec![step(30, true, &[(1, 0)], &[])],
+        ];
+        assert!(replay(&mixed, &NET).is_err());
+        assert!(intervals(&mixed).is_err());
     }
 
     #[test]

@@ -35,8 +35,9 @@ impl<E: Executor> Engine<E> {
         let ws = &mut self.ws;
         // Per-vertex stages run on the executor in fixed runs of vertices;
         // each writes only its own vertices' entries.
-        // Over ranks only the live vertices (owned here, or shared) are
-        // advanced; the others stay as they were until the pass ends.
+        // Over ranks only the live vertices (owned here, or read here by a
+        // partition or an island) are advanced; the others stay as they
+        // were until the pass ends.
         let share = self.share.as_ref();
         let live = share.map(|_| &ws.pass_share.live[..]);
         let is_live = |i: usize| live.is_none_or(|l| l[i]);
@@ -70,8 +71,9 @@ impl<E: Executor> Engine<E> {
         // slots, then the islands' kicks at `t` (bucketed by run, each
         // vertex's in island order), then the new velocity, and the first
         // vertex whose new state is not finite. Over ranks each rank does
-        // this for the vertices it owns, and hands the shared ones' new
-        // velocities and its first non-finite vertex to every rank.
+        // this for the vertices it owns, sends their new velocities to the
+        // ranks that read them, and its first non-finite vertex to every
+        // rank.
         let velocities = trace::span("tick velocities");
         let h = w.lattice.h_el();
         let tsec = w.lattice.seconds(t);

@@ -359,7 +359,8 @@ impl<E: Executor> Engine<E> {
             }
         };
         // Each rank builds the islands placed on it (they run there for the
-        // whole pass; the others' results arrive with every segment).
+        // whole pass; of the others' results, each segment brings what
+        // this rank keeps).
         let me = self.exec.rank() as u32;
         ws.islands = (0..packs.len())
             .map(|k| match ws.island_rank[k] == me {
@@ -555,7 +556,9 @@ impl<E: Executor> Engine<E> {
                     .count();
                 added.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
             });
-            debug_assert!(self.share.is_some() || added.into_inner() == count);
+            // Each breakpoint present here lengthens its polyline (see
+            // above); over ranks these are the ones this rank keeps.
+            debug_assert_eq!(added.into_inner(), present);
         }
         if count > 0 {
             self.traj
@@ -623,7 +626,9 @@ impl SegmentTotals {
     fn add(&mut self, other: &SegmentTotals) {
         self.evaluations += other.evaluations;
         self.kicks += other.kicks;
-        self.min_separation = self.min_separation.min(other.min_separation);
+        // (`+ 0.0` makes a zero positive: `min` may return either zero, and
+        // the totals are folded in rank order, not island order.)
+        self.min_separation = self.min_separation.min(other.min_separation) + 0.0;
         if let Some(b) = other.blew_up {
             self.blew_up = Some(self.blew_up.map_or(b, |a| a.min(b)));
         }
