@@ -142,37 +142,24 @@ pub struct StageSeconds {
     pub sent: StageSent,
 }
 
-/// Bytes sent per stage of one rank (see [`StageSeconds::sent`]).
+/// One figure per stage of a rank's window (CPU seconds in
+/// [`StageSeconds::cpu`], bytes sent in [`StageSeconds::sent`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct StageSent {
+pub struct PerStage {
     pub events: f64,
     pub broad: f64,
     pub narrow: f64,
     pub commit: f64,
     pub predict: f64,
-}
-
-impl std::ops::AddAssign for StageSent {
-    fn add_assign(&mut self, o: Self) {
-        self.events += o.events;
-        self.broad += o.broad;
-        self.narrow += o.narrow;
-        self.commit += o.commit;
-        self.predict += o.predict;
-    }
 }
 
 /// CPU seconds per stage of one rank (see [`StageSeconds::cpu`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct StageCpu {
-    pub events: f64,
-    pub broad: f64,
-    pub narrow: f64,
-    pub commit: f64,
-    pub predict: f64,
-}
+pub type StageCpu = PerStage;
 
-impl std::ops::AddAssign for StageCpu {
+/// Bytes sent per stage of one rank (see [`StageSeconds::sent`]).
+pub type StageSent = PerStage;
+
+impl std::ops::AddAssign for PerStage {
     fn add_assign(&mut self, o: Self) {
         self.events += o.events;
         self.broad += o.broad;
