@@ -82,17 +82,10 @@ impl<E: Executor> Engine<E> {
         let at_internal = islands.iter().flat_map(|island| &island.at_internal);
         let owned_kicks = at_internal.filter(|&&(i, _)| owned(i as usize)).copied();
         bucket_by_run(&mut ws.kicks_by_run, runs, owned_kicks);
-        struct Run<'a> {
-            acc: &'a mut [DVec3],
-            v_new: &'a mut [DVec3],
-            bad: Option<usize>,
-            /// Owned vertices before `bad` whose velocity changes.
-            changed: usize,
-        }
         let mut v_runs = split_chunks(&mut ws.v_new, runs).into_iter();
-        let mut fused: Vec<Run<'_>> = split_chunks(&mut ws.acc, runs)
+        let mut fused: Vec<FoldRun<'_>> = split_chunks(&mut ws.acc, runs)
             .into_iter()
-            .map(|(_, acc)| Run {
+            .map(|(_, acc)| FoldRun {
                 acc,
                 v_new: v_runs.next().expect("one per run").1,
                 bad: None,
@@ -100,32 +93,16 @@ impl<E: Executor> Engine<E> {
             })
             .collect();
         let (out, xt, kicks) = (&ws.out, &ws.xt, &ws.kicks_by_run);
+        let owned_in_run = &ws.owned_in_run;
+        let tick = TickConsts { out, xt, tsec, h };
         self.exec.for_each_item(&mut fused, &|k, r| {
             let start = k * VERTEX_RUN;
-            for (j, a) in r.acc.iter_mut().enumerate() {
-                let i = start + j;
-                if owned(i) && w.inv_mass[i] > 0.0 {
-                    let g = w.internal.fold(i, out) - w.gravity * w.mass[i];
-                    *a = g * -h;
+            match share {
+                None => r.fold(w, &tick, start, &kicks[k], 0..r.acc.len(), false),
+                Some(_) => {
+                    let owned = owned_in_run[k].iter().map(|&j| usize::from(j));
+                    r.fold(w, &tick, start, &kicks[k], owned, true)
                 }
-            }
-            for &(j, impulse) in &kicks[k] {
-                r.acc[j as usize] += impulse;
-            }
-            for (j, v) in r.v_new.iter_mut().enumerate() {
-                let i = start + j;
-                if owned(i) {
-                    *v = new_velocity(w, i, xt[i], r.acc[j], tsec, h);
-                }
-            }
-            r.bad = (0..r.v_new.len())
-                .find(|&j| owned(start + j) && blows_up(w, start + j, xt, r.v_new[j]))
-                .map(|j| start + j);
-            if share.is_some() {
-                let end = r.bad.map_or(r.v_new.len(), |b| b - start);
-                r.changed = (0..end)
-                    .filter(|&j| owned(start + j) && r.v_new[j] != w.v[start + j])
-                    .count();
             }
         });
         let bad = fused.iter().find_map(|r| r.bad);
@@ -212,17 +189,27 @@ impl<E: Executor> Engine<E> {
                 added: 0,
             })
             .collect();
-        self.exec.for_each_item(&mut apply_runs, &|_, r| {
+        let live_in_run = &ws.live_in_run;
+        self.exec.for_each_item(&mut apply_runs, &|k, r| {
             r.traj.prepare();
             let end = r.x.len().min(limit.saturating_sub(r.start));
-            for j in 0..end {
+            // Every vertex of the run before `limit`; over ranks the live
+            // ones only (ascending).
+            let mut apply = |j: usize| {
                 let i = r.start + j;
-                if live.is_none_or(|l| l[i]) && v_new[i] != r.v[j] {
+                if v_new[i] != r.v[j] {
                     r.x[j] = xt[i];
                     r.tau[j] = t;
                     r.v[j] = v_new[i];
                     r.added += usize::from(r.traj.stage(j, xt[i]));
                 }
+            };
+            match live {
+                None => (0..end).for_each(&mut apply),
+                Some(_) => (live_in_run[k].iter())
+                    .map(|&j| usize::from(j))
+                    .take_while(|&j| j < end)
+                    .for_each(&mut apply),
             }
         });
         let added = recorded.unwrap_or_else(|| apply_runs.iter().map(|r| r.added).sum());
@@ -239,6 +226,69 @@ impl<E: Executor> Engine<E> {
             });
         }
         Ok(())
+    }
+}
+
+/// One run of vertices of an internal tick's fused per-vertex pass: its
+/// impulses and new velocities, its first vertex whose new state is not
+/// finite, and (over ranks) how many before it change velocity.
+struct FoldRun<'a> {
+    acc: &'a mut [DVec3],
+    v_new: &'a mut [DVec3],
+    bad: Option<usize>,
+    /// Owned vertices before `bad` whose velocity changes.
+    changed: usize,
+}
+
+/// What every run of an internal tick reads: the internal forces' output
+/// slots, the positions at the tick, its time and the step.
+struct TickConsts<'a> {
+    out: &'a [DVec3],
+    xt: &'a [DVec3],
+    tsec: f64,
+    h: f64,
+}
+
+impl FoldRun<'_> {
+    /// The fused pass over the run's vertices at the offsets `js`
+    /// (ascending; every vertex of the run on one memory, the owned ones
+    /// over ranks) from vertex `start`: the ordered fold of the internal
+    /// slots, then the islands' `kicks` (in fold order), the new velocity,
+    /// the first vertex that blows up, and with `count` the velocities that
+    /// change before it.
+    #[inline]
+    fn fold(
+        &mut self,
+        w: &World,
+        tick: &TickConsts<'_>,
+        start: usize,
+        kicks: &[(u32, DVec3)],
+        js: impl Iterator<Item = usize> + Clone,
+        count: bool,
+    ) {
+        for j in js.clone() {
+            let i = start + j;
+            if w.inv_mass[i] > 0.0 {
+                let g = w.internal.fold(i, tick.out) - w.gravity * w.mass[i];
+                self.acc[j] = g * -tick.h;
+            }
+        }
+        for &(j, impulse) in kicks {
+            self.acc[j as usize] += impulse;
+        }
+        for j in js.clone() {
+            let i = start + j;
+            self.v_new[j] = new_velocity(w, i, tick.xt[i], self.acc[j], tick.tsec, tick.h);
+        }
+        self.bad = (js.clone())
+            .find(|&j| blows_up(w, start + j, tick.xt, self.v_new[j]))
+            .map(|j| start + j);
+        if count {
+            let end = self.bad.map_or(usize::MAX, |b| b - start);
+            self.changed = js
+                .filter(|&j| j < end && self.v_new[j] != w.v[start + j])
+                .count();
+        }
     }
 }
 

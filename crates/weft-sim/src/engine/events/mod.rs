@@ -105,6 +105,25 @@ pub(super) struct Workspace {
     kicks_by_run: Vec<Vec<(u32, DVec3)>>,
     /// Over ranks: the vertices this rank keeps current through the pass.
     pass_share: crate::share::PassShare,
+    /// Over ranks, per vertex run: the offsets in the run of the vertices
+    /// this rank owns (fixed for the run), and of those it keeps current
+    /// through the pass, so that the per-vertex stages of an internal tick
+    /// visit only those instead of testing every vertex.
+    owned_in_run: Vec<Vec<u16>>,
+    live_in_run: Vec<Vec<u16>>,
+}
+
+/// The offsets in each run of [`VERTEX_RUN`] vertices (cut at `runs`) of
+/// the vertices `pick` keeps.
+fn in_runs(runs: &[usize], pick: impl Fn(usize) -> bool) -> Vec<Vec<u16>> {
+    (runs.windows(2))
+        .map(|r| {
+            (r[0]..r[1])
+                .filter(|&i| pick(i))
+                .map(|i| (i - r[0]) as u16)
+                .collect()
+        })
+        .collect()
 }
 
 impl Workspace {
@@ -376,6 +395,11 @@ impl<E: Executor> Engine<E> {
                     .flat_map(move |&a| active[a as usize].0.v.map(|i| (i, r)))
             });
             ws.pass_share = share.pass(reads);
+            let live = &ws.pass_share.live;
+            ws.live_in_run = in_runs(&ws.vertex_runs, |i| live[i]);
+            if ws.owned_in_run.is_empty() {
+                ws.owned_in_run = in_runs(&ws.vertex_runs, |i| share.owns(i));
+            }
         }
     }
 
