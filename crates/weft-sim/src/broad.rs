@@ -249,9 +249,7 @@ impl BroadPhase {
         let raw: &[Dop26] = &raw;
         exec.for_each_chunk(vertex_dops, bounds, &|k, chunk: &mut [[Dop26; 2]]| {
             for (&raw, d) in raw[k * RUN..].iter().zip(chunk.iter_mut()) {
-                let mut inflated = raw;
-                inflated.inflate(inflate);
-                *d = [raw, inflated];
+                *d = raw_and_inflated(raw, inflate);
             }
         });
         let vd: &[[Dop26; 2]] = vertex_dops;
@@ -337,6 +335,13 @@ fn merge(outs: Vec<TaskOut>) -> Found {
     }
 }
 
+/// A vertex's DOP as the filter keeps it: raw, and inflated by `inflate`.
+fn raw_and_inflated(raw: Dop26, inflate: f64) -> [Dop26; 2] {
+    let mut inflated = raw;
+    inflated.inflate(inflate);
+    [raw, inflated]
+}
+
 /// What the spread broad phase reads of the window.
 struct Input<'a> {
     triangles: &'a [[u32; 3]],
@@ -410,16 +415,12 @@ fn spread_candidates<E: Executor>(
     vertex_dops.resize(n, [Dop26::empty(); 2]);
     runs(n, bounds);
     let inflate = input.inflate;
-    let both = |raw: Dop26| {
-        let mut inflated = raw;
-        inflated.inflate(inflate);
-        [raw, inflated]
-    };
     exec.for_each_chunk(vertex_dops, bounds, &|k, chunk: &mut [[Dop26; 2]]| {
         for (j, d) in chunk.iter_mut().enumerate() {
             let i = k * RUN + j;
             if traj.holds(i) {
-                *d = both(Dop26::from_points(traj.of(i).points.iter().copied()));
+                let raw = Dop26::from_points(traj.of(i).points.iter().copied());
+                *d = raw_and_inflated(raw, inflate);
             } else if cfg!(debug_assertions) {
                 // What no one sends must not be read: an empty DOP here
                 // would change the leaves (the tests would see it).
@@ -444,7 +445,13 @@ fn spread_candidates<E: Executor>(
             send_group(&mut sends, &groups[g], rank[g]);
         }
     }
-    let heads = deliver_dops(exec, vec![u64::from(held_empty)], sends, vertex_dops, &both)?;
+    let heads = deliver_dops(
+        exec,
+        vec![u64::from(held_empty)],
+        sends,
+        vertex_dops,
+        inflate,
+    )?;
     let exact_unions = !heads.iter().any(|h| h.first() != Some(&0));
     // 2. The own groups' trees.
     {
@@ -509,7 +516,7 @@ fn spread_candidates<E: Executor>(
             }
         }
     }
-    deliver_dops(exec, Vec::new(), sends, vertex_dops, &both)?;
+    deliver_dops(exec, Vec::new(), sends, vertex_dops, inflate)?;
     let filter = input.filter(vertex_dops, exact_unions);
     let direct = |t: u32| filter.leaf(filter.triangles[t as usize]);
     bounds.clear();
@@ -545,14 +552,14 @@ fn spread_candidates<E: Executor>(
 
 /// **Collective** (an all-to-all): sends each rank `r` the raw DOPs of the
 /// vertices `sends[r]` (held here; deduplicated here), with `head` to every
-/// rank, and stores the DOPs received (raw and inflated, `both`) in
+/// rank, and stores the DOPs received (raw and inflated by `inflate`) in
 /// `vertex_dops`. Returns every rank's head.
 fn deliver_dops<E: Executor>(
     exec: &E,
     head: Vec<u64>,
     sends: Vec<Vec<u32>>,
     vertex_dops: &mut [[Dop26; 2]],
-    both: &dyn Fn(Dop26) -> [Dop26; 2],
+    inflate: f64,
 ) -> Result<Vec<Vec<u64>>, CommError> {
     let me = exec.rank();
     let parts: Vec<Option<Vec<VertexDop>>> = (sends.into_iter().enumerate())
@@ -574,7 +581,7 @@ fn deliver_dops<E: Executor>(
                     "rank {me}: rank {r} sent the DOP of vertex {v}, past the end"
                 ))
             })?;
-            *d = both(raw);
+            *d = raw_and_inflated(raw, inflate);
         }
     }
     Ok(heads)

@@ -64,9 +64,6 @@ pub struct RankShare {
     pub recv_slots: Vec<(usize, Vec<u32>)>,
     /// Per rank: the vertices it owns (ascending).
     pub owned: Vec<Vec<u32>>,
-    /// Per vertex: an internal stencil of a partition placed off its owner
-    /// reads it.
-    pub boundary: Vec<bool>,
     /// Per vertex: an internal stencil of a partition placed on this rank
     /// reads it.
     pub read_here: Vec<bool>,
@@ -124,7 +121,6 @@ impl RankShare {
         }
         // What an element reads: its vertices, kinematic ones too (those
         // fold no slot).
-        let mut boundary = vec![false; n];
         let mut read_here = vec![false; n];
         let mut off_owner: Vec<(u32, u32)> = Vec::new();
         for (p, part) in internal.partitions.iter().enumerate() {
@@ -133,7 +129,6 @@ impl RankShare {
                 .chain((part.hinges.clone()).flat_map(|h| internal.hinges[h].verts.to_vec()));
             for i in reads {
                 if owner[i as usize] != home[p] {
-                    boundary[i as usize] = true;
                     off_owner.push((i, home[p]));
                 }
                 if home[p] as usize == rank {
@@ -180,7 +175,6 @@ impl RankShare {
             send_slots,
             recv_slots,
             owned,
-            boundary,
             read_here,
             reader_start,
             reader_ranks,

@@ -31,7 +31,7 @@ use serde::Serialize;
 use weft_io::checkpoint::read_checkpoint;
 use weft_io::scene::load_scene;
 use weft_par::Threads;
-use weft_sim::diagnostics::{StageCpu, StageSent};
+use weft_sim::diagnostics::{PerStage, StageCpu, StageSent};
 use weft_sim::{Engine, EngineState, Executor, NarrowLoad, Serial, World};
 
 use super::run::{execute, scene_hash, signals::StopRequest, RunJob, CHECKPOINT_FILE};
@@ -1023,30 +1023,26 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
                 x.wall - x.events - x.broad - x.narrow - x.commit - x.predict
             }),
         };
+        // Per window, rank `k`'s median per-stage figures `f` (CPU or bytes).
+        let per_stage = |k: usize, f: &dyn Fn(&RankSample) -> &PerStage| PerStage {
+            events: of_rank(&|s| &s.ranks[k], &|x| f(x).events),
+            broad: of_rank(&|s| &s.ranks[k], &|x| f(x).broad),
+            narrow: of_rank(&|s| &s.ranks[k], &|x| f(x).narrow),
+            commit: of_rank(&|s| &s.ranks[k], &|x| f(x).commit),
+            predict: of_rank(&|s| &s.ranks[k], &|x| f(x).predict),
+        };
         let evals = first.internal_evaluations as f64;
         let per_rank: Vec<RankFigures> = (0..ranks)
             .map(|k| RankFigures {
                 rank: k,
                 stage_seconds_per_window: stages(&|s| &s.ranks[k]),
-                cpu_seconds_per_window: StageCpu {
-                    events: of_rank(&|s| &s.ranks[k], &|x| x.cpu.events),
-                    broad: of_rank(&|s| &s.ranks[k], &|x| x.cpu.broad),
-                    narrow: of_rank(&|s| &s.ranks[k], &|x| x.cpu.narrow),
-                    commit: of_rank(&|s| &s.ranks[k], &|x| x.cpu.commit),
-                    predict: of_rank(&|s| &s.ranks[k], &|x| x.cpu.predict),
-                },
+                cpu_seconds_per_window: per_stage(k, &|x| &x.cpu),
                 cpu_total_seconds_per_window: of_rank(&|s| &s.ranks[k], &|x| x.cpu_total),
                 cpu_polling_seconds_per_window: of_rank(&|s| &s.ranks[k], &|x| x.cpu_polling),
                 peak_rss_bytes: samples.iter().filter_map(|s| s.ranks[k].peak_rss).max(),
                 messages_per_window: of_rank(&|s| &s.ranks[k], &|x| x.messages as f64),
                 bytes_per_window: of_rank(&|s| &s.ranks[k], &|x| x.bytes as f64),
-                sent_bytes_per_window: StageSent {
-                    events: of_rank(&|s| &s.ranks[k], &|x| x.sent.events),
-                    broad: of_rank(&|s| &s.ranks[k], &|x| x.sent.broad),
-                    narrow: of_rank(&|s| &s.ranks[k], &|x| x.sent.narrow),
-                    commit: of_rank(&|s| &s.ranks[k], &|x| x.sent.commit),
-                    predict: of_rank(&|s| &s.ranks[k], &|x| x.sent.predict),
-                },
+                sent_bytes_per_window: per_stage(k, &|x| &x.sent),
                 collectives_per_window: of_rank(&|s| &s.ranks[k], &|x| x.collectives as f64),
                 exchanges_per_window: of_rank(&|s| &s.ranks[k], &|x| x.exchanges as f64),
                 rounds_per_internal_tick: med(&|s| {

@@ -39,17 +39,14 @@ impl<E: Executor> Engine<E> {
         // partition or an island) are advanced; the others stay as they
         // were until the pass ends.
         let share = self.share.as_ref();
-        let live = share.map(|_| &ws.pass_share.live[..]);
-        let is_live = |i: usize| live.is_none_or(|l| l[i]);
+        let live_in_run = share.map(|_| &ws.live_in_run[..]);
         let positions = trace::span("tick positions");
         self.exec
             .for_each_chunk(&mut ws.xt, &ws.vertex_runs, &|k, run| {
-                for (j, p) in run.iter_mut().enumerate() {
-                    let i = k * VERTEX_RUN + j;
-                    if is_live(i) {
-                        *p = Self::pos_at(w, i, t);
-                    }
-                }
+                let live = live_in_run.map(|l| &l[k][..]);
+                each_in_run(live, run.len(), |j| {
+                    run[j] = Self::pos_at(w, k * VERTEX_RUN + j, t);
+                });
             });
         drop(positions);
         let (exec, bounds, xt) = (&self.exec, &ws.bounds, &ws.xt);
@@ -162,7 +159,7 @@ impl<E: Executor> Engine<E> {
         let v_new = &ws.v_new;
         let bounds = &ws.vertex_runs;
         let limit = bad.unwrap_or(n);
-        let live = self.share.as_ref().map(|_| &ws.pass_share.live[..]);
+        let live_in_run = self.share.as_ref().map(|_| &ws.live_in_run[..]);
         struct Run<'a> {
             start: usize,
             x: &'a mut [DVec3],
@@ -189,13 +186,11 @@ impl<E: Executor> Engine<E> {
                 added: 0,
             })
             .collect();
-        let live_in_run = &ws.live_in_run;
         self.exec.for_each_item(&mut apply_runs, &|k, r| {
             r.traj.prepare();
+            // The run's vertices before `limit` (over ranks, the live ones).
             let end = r.x.len().min(limit.saturating_sub(r.start));
-            // Every vertex of the run before `limit`; over ranks the live
-            // ones only (ascending).
-            let mut apply = |j: usize| {
+            each_in_run(live_in_run.map(|l| &l[k][..]), end, |j| {
                 let i = r.start + j;
                 if v_new[i] != r.v[j] {
                     r.x[j] = xt[i];
@@ -203,14 +198,7 @@ impl<E: Executor> Engine<E> {
                     r.v[j] = v_new[i];
                     r.added += usize::from(r.traj.stage(j, xt[i]));
                 }
-            };
-            match live {
-                None => (0..end).for_each(&mut apply),
-                Some(_) => (live_in_run[k].iter())
-                    .map(|&j| usize::from(j))
-                    .take_while(|&j| j < end)
-                    .for_each(&mut apply),
-            }
+            });
         });
         let added = recorded.unwrap_or_else(|| apply_runs.iter().map(|r| r.added).sum());
         drop(apply_runs);
@@ -226,6 +214,25 @@ impl<E: Executor> Engine<E> {
             });
         }
         Ok(())
+    }
+}
+
+/// Calls `f` with each offset below `end` of a run of vertices, ascending:
+/// every one (`listed` none: one memory), or those `listed` (over ranks: the
+/// vertices the rank keeps current, [`super::Workspace`]'s `live_in_run`).
+#[inline]
+fn each_in_run(listed: Option<&[u16]>, end: usize, mut f: impl FnMut(usize)) {
+    match listed {
+        None => (0..end).for_each(f),
+        Some(list) => {
+            for &j in list {
+                let j = usize::from(j);
+                if j >= end {
+                    break;
+                }
+                f(j);
+            }
+        }
     }
 }
 
