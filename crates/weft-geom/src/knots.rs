@@ -9,7 +9,7 @@
 //! about the tangent only slowly (the twist strain is `(w/2)^2 theta'^2 / 2`;
 //! a quarter turn costs about 0.5 % over 8 w). So every knot here is built
 //! from straight runs, where the ribbon can twist, and round bends of radius
-//! 5 w to 7 w, where it cannot; its strain stays below 0.7 % (1 % is the
+//! 5 w to 7 w, where it cannot; its strain stays below 0.8 % (1 % is the
 //! limit the scenes promise). Control points are in units of `w`, smoothed by
 //! a clamped cubic B-spline ([`crate::ribbon::bspline`]), 1.5 w apart.
 //!
@@ -34,16 +34,16 @@
 //!
 //! # Bowline: drawn in space (y up)
 //!
-//! One rope, from the standing part's end `(13.1, 32, -12.7) w` to the tail.
-//! The nipping turn is a helix of radius 6 w about the y axis climbing 1.6 w
+//! One rope, from the standing part's end `(11.7, 32, -11.0) w` to the tail.
+//! The nipping turn is a helix of radius 5 w about the y axis climbing 1.6 w
 //! per turn, a turn and a quarter long, on which the ribbon lies flat like a
 //! tape round a post. The standing part comes straight down, bends (radius
-//! 5 w) into a 12 w straight run that meets the turn at its bottom, climbs
-//! the turn, and leaves it at the top by another 12 w run (on the runs the
+//! 5 w) into a 10 w straight run that meets the turn at its bottom, climbs
+//! the turn, and leaves it at the top by another 10 w run (on the runs the
 //! ribbon turns from standing across the bends to lying on the turn) and a
 //! bend down into the fixed loop's first leg. The fixed loop is half a turn
-//! of radius about 9 w in a vertical plane, its bottom at about
-//! `(2.0, -24.8, 8.9) w`. Its second leg is the working part: it rises through
+//! of radius about 8 w in a vertical plane, its bottom at about
+//! `(2.5, -23.7, 8.9) w`. Its second leg is the working part: it rises through
 //! the nipping turn, leans over (70 degrees from vertical) to the standing
 //! part, makes the collar (half a turn of radius 2.5 w) round it, and comes
 //! back the same way, 5 w beside itself, down through the turn to the tail
@@ -52,7 +52,11 @@
 //! they cross — the bowline as it is tied ("the rabbit comes up the hole,
 //! round the tree and back down"), not the capsizing variant; the whole knot
 //! is then turned 25 degrees about y so that no straight run is seen end on
-//! from +z.
+//! from +z. The turn, the runs and the height of the lean (4 w above the
+//! turn's bottom) are about as small as the strain limit allows: a pull sets
+//! this knot tight, where the first design (a 6 w turn, 12 w runs, the lean
+//! at 7 w, the collar 18 w from the turn's axis) kept more slack than any
+//! pull along the rope took out (`docs/scenes.md`).
 //!
 //! # Checks
 //!
@@ -294,7 +298,7 @@ fn bowline_design() -> Vec<Vec<DVec3>> {
     // The nipping turn: a helix of radius r about the y axis climbing
     // `pitch` per turn, from angle -90 degrees (the back, z = -r) through a
     // turn and a quarter to angle 360 degrees (x = +r).
-    let (r, pitch) = (6.0, 1.6);
+    let (r, pitch) = (5.0, 1.6);
     let turn = 2.5 * PI; // a turn and a quarter
     let rise = pitch / (2.0 * PI * r); // dy / du
     let helix = |psi: f64| {
@@ -310,7 +314,7 @@ fn bowline_design() -> Vec<Vec<DVec3>> {
     // Straight runs into and out of the turn (where the ribbon turns from
     // lying on the turn to standing across the bends) and bends of radius
     // rho_b to and from vertical.
-    let (run, rho_b) = (12.0, 5.0);
+    let (run, rho_b) = (10.0, 5.0);
     // The standing part: down from y_top, a bend, the run into the turn.
     let t_in = tangent(psi0);
     let p_s = h0 - t_in * run;
@@ -357,7 +361,7 @@ fn bowline_design() -> Vec<Vec<DVec3>> {
     // Up, a bend leaning over towards the standing part, the lean, the
     // collar (half a turn of radius a) beyond the standing part, and the
     // same way back down through the turn to the tail.
-    let y_bend = 7.0;
+    let y_bend = 4.0;
     let lean = 70.0f64.to_radians();
     let t_c = (dir * libm::sin(lean) + DVec3::Y * libm::cos(lean)).normalize();
     // The collar's middle lands 2.5 beyond the standing part.
