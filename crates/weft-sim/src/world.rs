@@ -415,6 +415,7 @@ impl World {
             }
         };
         let lattice = Lattice::new(h_el, spec.time.steps_per_window);
+        initial_speeds_resolvable(&objects, &all.positions, &v, &kinematic, h_el)?;
 
         // Contact thickness: at most half the smallest cloth triangle altitude.
         let c = &spec.contact;
@@ -707,6 +708,53 @@ fn normalize_motion(m: &Motion, name: &str, n: usize) -> Result<Motion, SimError
             ))),
         },
         other => Ok(other.clone()),
+    }
+}
+
+/// Refuses a cloth vertex whose initial speed carries it farther in one
+/// internal step `h_el` than the whole scene is across (the diagonal of the
+/// bounding box of every initial position, at least 1 m): no penalty layer
+/// can act on such a motion, so every stencil on its path would be detected
+/// and rolled back up to `contact.max_rollbacks` (a cloth thrown at 1e307
+/// m/s made no progress in minutes). At 1 m across and a 3.5e-5 s step this
+/// allows about 28 km/s, far beyond any cloth; such a speed is almost always
+/// a unit mistake.
+fn initial_speeds_resolvable(
+    objects: &[ObjectInfo],
+    x: &[DVec3],
+    v: &[DVec3],
+    kinematic: &[bool],
+    h_el: f64,
+) -> Result<(), SimError> {
+    let (lo, hi) = x
+        .iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(*p), hi.max(*p))
+        });
+    let across = (hi - lo).length().max(1.0);
+    let fastest = (v.iter().zip(kinematic).enumerate())
+        .filter(|(_, (_, &k))| !k)
+        .map(|(i, (u, _))| {
+            // |u| without overflow: u.length() squares 1e307 to infinity.
+            let m = u.abs().max_element();
+            (i, if m > 0.0 { m * (*u / m).length() } else { 0.0 })
+        })
+        // The first of the fastest: the message names the lowest vertex id.
+        .fold(None, |best: Option<(usize, f64)>, (i, s)| match best {
+            Some((_, b)) if b >= s => best,
+            _ => Some((i, s)),
+        });
+    match fastest {
+        Some((i, speed)) if speed * h_el > across => Err(SimError::Config(format!(
+            "object '{}': initial velocity of vertex {} is {speed:.3e} m/s, which crosses \
+             {:.3e} m in one internal step of {h_el:.3e} s, more than the whole scene \
+             ({across:.3e} m across); contact cannot act on such a motion — check the \
+             velocity's units (m/s)",
+            place_of(objects, i as u32).object,
+            place_of(objects, i as u32).local,
+            speed * h_el,
+        ))),
+        _ => Ok(()),
     }
 }
 

@@ -1484,6 +1484,39 @@ fn non_finite_initial_velocity_is_refused() {
     );
 }
 
+/// A cloth thrown faster than contact can act on (across the whole scene in
+/// one internal step) is refused by name, not left to roll back for hours;
+/// one just slow enough to cross the scene in a step still starts.
+#[test]
+fn unresolvable_initial_speed_is_refused() {
+    let with_speed = |speed: f64| {
+        let mut c = cloth("shirt", small_sheet(3), DVec3::ZERO);
+        if let ObjectKind::Cloth { velocity, .. } = &mut c.kind {
+            velocity[7] = DVec3::new(0.0, -speed, 0.0);
+        }
+        two_objects_spec(obstacle("floor", big_triangle()), c)
+    };
+    let e = build_err(&with_speed(1e307));
+    let msg = e.to_string();
+    println!("{msg}");
+    assert!(matches!(e, SimError::Config(_)), "{e:?}");
+    assert!(
+        msg.contains("shirt") && msg.contains("vertex 7") && msg.contains("1.000e307 m/s"),
+        "{msg}"
+    );
+    // The limit: the scene's extent (at least 1 m) per internal step.
+    let w = World::build(&with_speed(0.0)).expect("a resting cloth starts");
+    let h = w.lattice.h_el();
+    let (lo, hi) =
+        w.x.iter()
+            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(*p), hi.max(*p))
+            });
+    let across = (hi - lo).length().max(1.0);
+    assert!(World::build(&with_speed(0.99 * across / h)).is_ok());
+    assert!(World::build(&with_speed(1.01 * across / h)).is_err());
+}
+
 #[test]
 fn non_finite_positions_are_refused_as_mesh_errors() {
     for (obj, vertex) in [(0usize, 1usize), (1, 5)] {
