@@ -48,7 +48,9 @@ fn crumple_hash_is_independent_of_partitioning() {
             "P = {partitions}: {} rollbacks, depth {}, peak active {}, hash {}",
             summary.rollbacks, summary.max_depth, summary.max_active_stencils, summary.state_hash
         );
-        assert!(summary.rollbacks >= 20, "{} rollbacks", summary.rollbacks);
+        // 14 rollbacks measured (prediction gives most layers before they
+        // are asked for: 20 and more before its margin and energy count).
+        assert!(summary.rollbacks >= 10, "{} rollbacks", summary.rollbacks);
         assert!(summary.max_depth >= 5, "depth {}", summary.max_depth);
         assert!(
             summary.max_active_stencils >= 300,

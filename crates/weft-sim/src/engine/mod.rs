@@ -534,8 +534,11 @@ impl<E: Executor> Engine<E> {
             // Roll back: restore the state, keep (and extend) the layers.
             snap.restore(&mut self.world);
             // Each reported stencil gets `layers_per_detection` more layers,
-            // or as many as remain down to the deepest resolved one; only a
-            // stencil already there has none left to get.
+            // or, with prediction on, more when its closing energy at the
+            // window start needs them (`predict::layers_to_hold`); at most as
+            // many as remain down to the deepest resolved one (only a stencil
+            // already there has none left to get). With prediction off the
+            // layers are exactly the detection's, as before prediction.
             let extra = self.world.contact.layers_per_detection;
             for key in &reported {
                 let depth = self.world.layers.depth(key);
@@ -549,7 +552,11 @@ impl<E: Executor> Engine<E> {
                         resolved,
                     });
                 }
-                let added = extra.min(resolved - depth);
+                let added = if self.world.contact.predict {
+                    predict::layers_to_hold(&self.world, key, depth, extra, resolved)
+                } else {
+                    extra.min(resolved - depth)
+                };
                 self.world.layers.deepen(*key, added);
                 detected_layers += added as u64;
             }

@@ -27,8 +27,8 @@
 //! (`a_i = 0` for a vertex of a stencil inside `eta_1` now: contact forces,
 //! left out here, hold it). The broad phase over the sampled polylines finds
 //! the stencils that may come near; one whose distance at a sample is inside
-//! `eta_1` gets layers as a detection would give them
-//! (`layers_per_detection`). The acceleration's displacement is clamped to
+//! [`NEW_CONTACT_MARGIN`] `eta_1` gets layers as a detection would give them
+//! ([`layers_to_hold`]). The acceleration's displacement is clamped to
 //! `eta_1`: a larger one comes from stiff elastic modes that oscillate many
 //! times within a window instead of carrying the vertex along (unclamped,
 //! `crumple`'s wavy start predicted 7,125 contacts at window 0; none was
@@ -39,6 +39,22 @@
 //! 5 layers a window, to depth 60); they get more layers when their closing
 //! kinetic energy exceeds what their active layers store on the way to the
 //! next one ([`closes_through_barrier`]).
+//!
+//! **How many layers.** A predicted or detected stencil gets at least
+//! `layers_per_detection` layers, and as many more as its closing kinetic
+//! energy at the window start needs to be stored before the next inactive
+//! layer ([`layers_to_hold`]): a fast impact gets its layers at once instead
+//! of 5 per rollback.
+//!
+//! Measured on `crumple` (`docs/performance.md`, "Fewer passes": what the
+//! rollbacks that prediction missed were): new contacts hovering just
+//! outside `eta_1` (at 1.00–1.3 `eta_1` at the window start, predicted just
+//! outside it), resting contacts inside their deepest layer that sank one
+//! layer deeper, and fast impacts that took 5 layers per rollback, up to
+//! four rollbacks a window. The margin and the energy count took its
+//! rollbacks from 73 to 52, and the 10k twister's from 2 in 3 windows to
+//! none; the resting contacts are left to the detection
+//! ([`closes_through_barrier`] says why).
 //!
 //! Predicted layers retire like any other, after `retire_after_windows` calm
 //! windows. Measured on the 10k twister from its checkpoint: every stencil a
@@ -62,6 +78,18 @@ use crate::trajectory::Trajectories;
 
 /// How far ahead the motion is sampled, in half windows.
 const HORIZON_HALF_WINDOWS: u64 = 3;
+
+/// A new contact is predicted when its sampled distance comes within this
+/// many `eta_1`: the extrapolation is rough, and contacts hovering just
+/// outside `eta_1` dip into it between samples. Measured (with the energy
+/// count of [`layers_to_hold`]): from 1 to 1.25 the 10k twister's
+/// rollbacks went from 2 in 3 windows to none, `crumple`'s from 69 to 52,
+/// and the bundled twister from 1.0 s to 1.6 s from 43 to 5 in 0.88× the
+/// time. A wider margin costs more than it saves: every stencil hovering
+/// within it is active, asleep or not (its islands, its sleep and wake
+/// bookkeeping); at 2 the bundled twister held twice the active stencils
+/// and took 1.12× the time, at 1.5 0.98×, for no fewer rollbacks.
+const NEW_CONTACT_MARGIN: f64 = 1.25;
 
 /// The predictor's memory, reused across windows.
 #[derive(Debug)]
@@ -103,6 +131,13 @@ fn clamp_length(a: DVec3, max: f64) -> DVec3 {
 /// is no guide here, since the active layers push back; measured on
 /// `crumple`, extrapolating through them deepened stencils without end.
 ///
+/// A resting contact inside its deepest layer, pressed a layer deeper by
+/// the next fluctuation, is not foreseen. Giving every such stencil more
+/// layers took `crumple`'s rollbacks from 69 to 48 (with a margin of 2),
+/// but made the bundled twister's first second 1.26× slower: a stencil
+/// resting just outside its next layer has no room for a sleep
+/// certificate, so that layer's frequent batches read it again and again.
+///
 /// Along the normal, with `d' = Σ_j c_j n·v_j` and the effective mass
 /// `m = 1 / Σ_j c_j² w_j` (dynamic vertices only):
 ///
@@ -133,6 +168,66 @@ fn closes_through_barrier(
     let barrier =
         w.schedule.energy_through(depth, eta_next) - w.schedule.energy_through(depth, c.d);
     closing > barrier
+}
+
+/// How many layers a stencil of depth `depth` gets when it is predicted or
+/// detected: at least `min` (`layers_per_detection`), and as many more as
+/// its closing kinetic energy needs, as in [`closes_through_barrier`]: the
+/// smallest `D - depth` with
+///
+/// ```text
+/// m min(0, d')² / 2  ≤  Σ_l≤D V_l(eta_(D+1)) - V_l(d)     (d < eta_(D+1) counts as not enough)
+/// ```
+///
+/// at most `resolved - depth`. The effective mass is the stencil's own, so
+/// this is a lower bound of what the impact needs (the cloth around pushes
+/// too): the detection still asks for more when it does not hold.
+pub(super) fn layers_to_hold(
+    w: &crate::world::World,
+    key: &StencilKey,
+    depth: u32,
+    min: u32,
+    resolved: u32,
+) -> u32 {
+    let room = resolved.saturating_sub(depth);
+    let x = key.v.map(|i| w.x[i as usize]);
+    let c = stencil_closest(key.kind, &x);
+    let (mut rate, mut m_inv) = (0.0, 0.0);
+    for j in 0..4 {
+        let i = key.v[j] as usize;
+        rate += c.coeff[j] * c.n.dot(w.v[i]);
+        m_inv += c.coeff[j] * c.coeff[j] * w.inv_mass[i];
+    }
+    if !(m_inv > 0.0) {
+        return min.min(room);
+    }
+    let closing = 0.5 * rate.min(0.0) * rate.min(0.0) / m_inv;
+    // Whether `deep` layers hold it. Monotone in `deep` (a deeper next
+    // layer, and more layers each storing more on the way to it), so the
+    // smallest is found by bisection: a fast impact may need thousands of
+    // the resolved layers, and each test sums `deep` energies.
+    let holds = |deep: u32| {
+        let eta_next = w.schedule.eta(deep + 1);
+        c.d > eta_next
+            && closing
+                <= w.schedule.energy_through(deep, eta_next) - w.schedule.energy_through(deep, c.d)
+    };
+    let first = depth.saturating_add(min).min(resolved);
+    if first >= resolved || holds(first) {
+        return first - depth;
+    }
+    // holds(lo) is false; the answer is in (lo, hi], `resolved` when none
+    // below it holds.
+    let (mut lo, mut hi) = (first, resolved);
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if holds(mid) {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    hi - depth
 }
 
 /// The stencils the predictor deepened before a window, in key order: each
@@ -236,7 +331,7 @@ impl<E: Executor> Engine<E> {
             }
             (1..=HORIZON_HALF_WINDOWS).any(|k| {
                 let x = key.v.map(|i| ahead(i as usize, k));
-                stencil_closest(key.kind, &x).d < eta_next
+                stencil_closest(key.kind, &x).d < NEW_CONTACT_MARGIN * eta_next
             })
         })?;
         let extra = w.contact.layers_per_detection;
@@ -244,7 +339,7 @@ impl<E: Executor> Engine<E> {
         for (key, deeper) in keys.iter().zip(deeper) {
             if deeper {
                 let before = self.world.layers.depth(key);
-                let added = extra.min(resolved - before);
+                let added = layers_to_hold(&self.world, key, before, extra, resolved);
                 self.world.layers.deepen(*key, added);
                 predicted.stencils.push((*key, before, added));
                 predicted.layers += added as u64;
