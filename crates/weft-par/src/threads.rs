@@ -73,6 +73,10 @@ impl Executor for Threads {
         format!("threads({})", self.threads())
     }
 
+    fn join(&self, a: &mut (dyn FnMut() + Send), b: &mut (dyn FnMut() + Send)) {
+        self.pool.install(|| rayon::join(a, b));
+    }
+
     fn threads_per_rank(&self) -> usize {
         self.threads()
     }
@@ -100,5 +104,33 @@ mod tests {
         let squares = t.map(1000, &|i| i * i);
         assert!(squares.iter().enumerate().all(|(i, &s)| s == i * i));
         assert_eq!(t.threads(), 3);
+    }
+
+    #[test]
+    fn join_runs_both_sides_at_once() {
+        // Each side waits until the other has started: on one thread in
+        // order this would never end, so the pool must run them together
+        // (bounded: a side gives up after 10 s and the test fails).
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        let t = Threads::new(2).unwrap();
+        let started = AtomicUsize::new(0);
+        let meet = || {
+            started.fetch_add(1, Ordering::SeqCst);
+            let clock = std::time::Instant::now();
+            while started.load(Ordering::SeqCst) < 2 {
+                assert!(clock.elapsed().as_secs() < 10, "the other side never ran");
+                std::thread::yield_now();
+            }
+            t.map(100, &|i| i).len()
+        };
+        let (mut a, mut b) = (0, 0);
+        t.join(&mut || a = meet(), &mut || b = meet());
+        assert_eq!((a, b), (100, 100));
+        // In order on one thread.
+        let order = std::sync::Mutex::new(Vec::new());
+        weft_sim::Serial.join(&mut || order.lock().unwrap().push('a'), &mut || {
+            order.lock().unwrap().push('b')
+        });
+        assert_eq!(*order.lock().unwrap(), ['a', 'b']);
     }
 }

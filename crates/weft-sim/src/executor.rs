@@ -67,6 +67,16 @@ pub trait Executor: Sync {
     /// `(0..n).map(f)`, possibly in parallel; results in index order.
     fn map<R: Send>(&self, n: usize, f: &(dyn Fn(usize) -> R + Sync)) -> Vec<R>;
 
+    /// Runs `a` and `b` to the end, at the same time where the executor has
+    /// a thread to spare (`a` on the calling thread, `b` wherever a thread
+    /// is free, each free to use the executor itself): work that shares
+    /// nothing, such as a segment's contact islands and the internal forces
+    /// that no island touches. In order on one thread.
+    fn join(&self, a: &mut (dyn FnMut() + Send), b: &mut (dyn FnMut() + Send)) {
+        a();
+        b();
+    }
+
     /// A short name for logs and benchmarks.
     fn name(&self) -> String;
 

@@ -23,6 +23,16 @@ pub struct Partition {
     pub slots: Range<usize>,
 }
 
+/// A subset of the internal elements: per stretch element and per hinge
+/// (by storage index) whether it is in, and per partition how many of its
+/// elements are.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ElementMask {
+    pub stretch: Vec<bool>,
+    pub hinges: Vec<bool>,
+    pub in_partition: Vec<usize>,
+}
+
 /// All internal stencils of the world.
 #[derive(Clone, Debug)]
 pub struct InternalForces {
@@ -226,13 +236,85 @@ impl InternalForces {
         });
     }
 
+    /// As [`Self::evaluate`], but only the elements whose entry in `mask`
+    /// is `want` (the others' slots are left as they are): an internal
+    /// tick's elements split between the part computed while the contact
+    /// islands run and the rest. Each element writes its own slots, so the
+    /// bits do not depend on the split.
+    #[allow(clippy::too_many_arguments)]
+    pub fn evaluate_masked<E: Executor>(
+        &self,
+        exec: &E,
+        bounds: &[usize],
+        x: &[DVec3],
+        v: &[DVec3],
+        out: &mut [DVec3],
+        mask: &ElementMask,
+        want: bool,
+    ) {
+        exec.for_each_chunk(out, bounds, &|p, chunk: &mut [DVec3]| {
+            let part = &self.partitions[p];
+            let all = part.stretch.len() + part.hinges.len();
+            let wanted = match want {
+                true => mask.in_partition[p],
+                false => all - mask.in_partition[p],
+            };
+            if wanted == 0 {
+                return;
+            }
+            let _span = crate::trace::span_with("partition", "partition", p as u64);
+            if wanted == all {
+                return self.evaluate_partition(p, x, v, chunk);
+            }
+            self.evaluate_elements(p, x, v, chunk, Some((mask, want)));
+        });
+    }
+
+    /// The elements (by storage index) all of whose vertices `pick` keeps.
+    pub fn mask_where(&self, pick: impl Fn(u32) -> bool) -> ElementMask {
+        let stretch: Vec<bool> = (self.stretch.iter())
+            .map(|e| e.verts.iter().all(|&i| pick(i)))
+            .collect();
+        let hinges: Vec<bool> = (self.hinges.iter())
+            .map(|e| e.verts.iter().all(|&i| pick(i)))
+            .collect();
+        let in_partition = (self.partitions.iter())
+            .map(|p| {
+                let s = stretch[p.stretch.clone()].iter().filter(|&&b| b).count();
+                s + hinges[p.hinges.clone()].iter().filter(|&&b| b).count()
+            })
+            .collect();
+        ElementMask {
+            stretch,
+            hinges,
+            in_partition,
+        }
+    }
+
     /// Evaluates partition `p`'s elements into `chunk` (its output slots,
     /// `partitions[p].slots`), reading only the positions and velocities of
     /// their vertices.
     pub fn evaluate_partition(&self, p: usize, x: &[DVec3], v: &[DVec3], chunk: &mut [DVec3]) {
+        self.evaluate_elements(p, x, v, chunk, None);
+    }
+
+    /// Evaluates the elements of partition `p` into their slots of `chunk`:
+    /// every one, or (`mask`, `want`) those whose entry in `mask` is `want`.
+    fn evaluate_elements(
+        &self,
+        p: usize,
+        x: &[DVec3],
+        v: &[DVec3],
+        chunk: &mut [DVec3],
+        mask: Option<(&ElementMask, bool)>,
+    ) {
         let part = &self.partitions[p];
         let mut k = 0;
         for s in part.stretch.clone() {
+            if mask.is_some_and(|(m, want)| m.stretch[s] != want) {
+                k += 3;
+                continue;
+            }
             let e = &self.stretch[s];
             let m = &self.materials[self.stretch_material[s] as usize];
             let xs = e.verts.map(|i| x[i as usize]);
@@ -248,6 +330,10 @@ impl InternalForces {
             k += 3;
         }
         for h in part.hinges.clone() {
+            if mask.is_some_and(|(m, want)| m.hinges[h] != want) {
+                k += 4;
+                continue;
+            }
             let e = &self.hinges[h];
             let m = &self.materials[self.hinge_material[h] as usize];
             let xs = e.verts.map(|i| x[i as usize]);

@@ -21,11 +21,15 @@ impl<E: Executor> Engine<E> {
     /// each vertex's ordered fold of its internal slots and then of its
     /// island's kicks at `t` (`islands`, in island order: each vertex's
     /// terms in (layer, key) order, where the global schedule folds them),
-    /// new velocities, and the new states with their breakpoints.
+    /// new velocities, and the new states with their breakpoints. With
+    /// `calm`, the positions of the vertices outside every island and the
+    /// internal forces of the elements among them were computed while the
+    /// islands ran ([`super::Calm`]): only the rest is computed here.
     pub(super) fn internal_tick(
         &mut self,
         t: Tick,
         islands: &[SegmentOutput],
+        calm: bool,
         counts: &mut super::PassCounts,
     ) -> Result<(), SimError> {
         let _span = trace::span("internal tick");
@@ -39,7 +43,12 @@ impl<E: Executor> Engine<E> {
         // partition or an island) are advanced; the others stay as they
         // were until the pass ends.
         let share = self.share.as_ref();
-        let live_in_run = share.map(|_| &ws.live_in_run[..]);
+        let calm = calm.then(|| ws.calm.as_ref().expect("a calm part"));
+        let live_in_run = match (share, calm) {
+            (Some(_), _) => Some(&ws.live_in_run[..]),
+            (None, Some(calm)) => Some(&calm.island_in_run[..]),
+            (None, None) => None,
+        };
         let positions = trace::span("tick positions");
         self.exec
             .for_each_chunk(&mut ws.xt, &ws.vertex_runs, &|k, run| {
@@ -51,9 +60,18 @@ impl<E: Executor> Engine<E> {
         drop(positions);
         let (exec, bounds, xt) = (&self.exec, &ws.bounds, &ws.xt);
         match share {
-            None => w
-                .internal
-                .evaluate(exec, bounds, xt, &w.v, &mut ws.out, None),
+            None => match calm {
+                None => (w.internal).evaluate(exec, bounds, xt, &w.v, &mut ws.out, None),
+                Some(calm) => (w.internal).evaluate_masked(
+                    exec,
+                    bounds,
+                    xt,
+                    &w.v,
+                    &mut ws.out,
+                    &calm.elements,
+                    false,
+                ),
+            },
             Some(share) => {
                 let boundary = Some(&share.boundary_partition[..]);
                 w.internal

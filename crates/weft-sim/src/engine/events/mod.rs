@@ -23,6 +23,7 @@ mod internal;
 mod island;
 
 use std::sync::Mutex;
+use std::time::Instant;
 
 use glam::DVec3;
 use weft_core::StencilKey;
@@ -111,6 +112,28 @@ pub(super) struct Workspace {
     /// visit only those instead of testing every vertex.
     owned_in_run: Vec<Vec<u16>>,
     live_in_run: Vec<Vec<u16>>,
+    /// On one memory, with islands: what of each internal tick runs while
+    /// the islands of the segment before it run.
+    calm: Option<Calm>,
+}
+
+/// What of an internal tick does not wait for the contact islands of the
+/// segment before it (one memory). Between two internal ticks the islands
+/// move only their own vertices, so every other vertex's position at the
+/// tick, and the internal forces of the elements all of whose vertices lie
+/// outside every island, are known when the segment starts: they are
+/// computed while the islands run ([`Executor::join`]: a giant island keeps
+/// one thread, the others take these), the rest at the tick. Each position
+/// and each element's slots are computed once, from the same state, so the
+/// bits are those of computing everything at the tick.
+#[derive(Debug)]
+pub(super) struct Calm {
+    /// The elements with no island vertex.
+    elements: crate::internal::ElementMask,
+    /// Per run of vertices: the offsets of the island vertices, and of the
+    /// others.
+    island_in_run: Vec<Vec<u16>>,
+    calm_in_run: Vec<Vec<u16>>,
 }
 
 /// The offsets in each run of [`VERTEX_RUN`] vertices (cut at `runs`) of
@@ -273,7 +296,11 @@ impl<E: Executor> Engine<E> {
                 break;
             }
             segments += 1;
-            let (outputs, totals) = self.run_islands(&layer_consts, (s, e), internal)?;
+            let calm = internal && self.ws.calm.is_some();
+            let (outputs, totals) = match calm {
+                true => self.run_islands_and_calm(&layer_consts, (s, e), &mut counts),
+                false => self.run_islands(&layer_consts, (s, e), internal)?,
+            };
             if let Some(blew_up) = self.apply_islands(&outputs, &totals, t0, &mut counts)? {
                 // A speculative pass that blew up in an island (typically a
                 // stencil pushed through too few layers): that island
@@ -287,7 +314,7 @@ impl<E: Executor> Engine<E> {
             if !internal {
                 break;
             }
-            match self.internal_tick(b, &outputs, &mut counts) {
+            match self.internal_tick(b, &outputs, calm, &mut counts) {
                 Ok(()) => {}
                 Err(e @ SimError::NonFinite { .. }) => {
                     // As above, at the internal tick: the pass ends at `b`,
@@ -387,6 +414,17 @@ impl<E: Executor> Engine<E> {
                 false => Mutex::default(),
             })
             .collect();
+        ws.calm = (self.share.is_none() && !packs.is_empty()).then(|| {
+            let mut in_island = vec![false; w.num_vertices()];
+            for &i in (0..packs.len()).flat_map(|k| packs.vertices_of(k)) {
+                in_island[i as usize] = true;
+            }
+            Calm {
+                elements: w.internal.mask_where(|i| !in_island[i as usize]),
+                island_in_run: in_runs(&ws.vertex_runs, |i| in_island[i]),
+                calm_in_run: in_runs(&ws.vertex_runs, |i| !in_island[i]),
+            }
+        });
         if let Some(share) = &self.share {
             // Every vertex an island's stencils read, with the island's rank.
             let reads = (0..packs.len()).flat_map(|k| {
@@ -422,56 +460,22 @@ impl<E: Executor> Engine<E> {
         if n == 0 {
             return Ok((Vec::new(), SegmentTotals::default()));
         }
-        let _span = trace::span_with("islands", "islands", n as u64);
-        // Bins of this rank's islands, dealt largest first (by the seconds
-        // of their last segment) to the least-loaded bin, so a few tasks
-        // carry the many small islands (a task per island would cost more
-        // than most islands do).
-        let (ranks, me) = (self.exec.ranks(), self.exec.rank() as u32);
-        let per_rank = if ranks == 1 {
-            BINS_PER_THREAD * self.exec.threads_per_rank().max(1)
-        } else {
-            BINS_PER_RANK
-        };
-        let mut bins: Vec<Vec<u32>> = vec![Vec::new(); per_rank];
-        let mut load = vec![0.0f64; per_rank];
-        for k in largest_first(&self.ws.island_cost) {
-            if self.ws.island_rank[k as usize] != me {
-                continue;
-            }
-            let b = (0..per_rank)
-                .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
-                .expect("a bin");
-            load[b] += self.ws.island_cost[k as usize].max(1e-9);
-            bins[b].push(k);
-        }
         let shared = Shared {
             world: &self.world,
             layer_consts,
             exhaustive: self.every_layer_event,
             pass_end: self.ws.pass_end,
         };
-        let (islands, exec) = (&self.ws.islands, &self.exec);
-        let binned = self.exec.map(bins.len(), &|b| {
-            let _span = trace::span_with("island task", "islands", bins[b].len() as u64);
-            (bins[b].iter())
-                .map(|&k| {
-                    let mut island = islands[k as usize].lock().expect("an island's lock");
-                    island.run_segment(exec, &shared, (s, e), internal)
-                })
-                .collect::<Vec<_>>()
-        });
-        let mut mine: Vec<(u32, SegmentOutput)> = bins
-            .into_iter()
-            .flatten()
-            .zip(binned.into_iter().flatten())
-            .collect();
-        mine.sort_unstable_by_key(|m| m.0);
-        for (k, output) in &mine {
-            self.ws.island_cost[*k as usize] = output.seconds;
-        }
-        let outputs: Vec<SegmentOutput> = mine.into_iter().map(|m| m.1).collect();
+        let ws = &mut self.ws;
+        let outputs = run_bins(
+            &self.exec,
+            &shared,
+            (&ws.islands, &ws.island_rank, &mut ws.island_cost),
+            (s, e),
+            internal,
+        );
         let totals = SegmentTotals::of(&outputs);
+        let (ranks, me) = (self.exec.ranks(), self.exec.rank() as u32);
         if ranks == 1 {
             return Ok((outputs, totals));
         }
@@ -493,6 +497,72 @@ impl<E: Executor> Engine<E> {
                 .filter_map(|(_, part)| part),
         );
         Ok((outputs, all))
+    }
+
+    /// On one memory, every island's segment `[s, e)` and its kicks at the
+    /// internal tick `e`, while the calm part of that tick ([`Calm`]) runs
+    /// beside it: the positions at `e` of the vertices outside every
+    /// island, and the internal forces of the elements among them. Its wall
+    /// seconds count as internal-force time.
+    fn run_islands_and_calm(
+        &mut self,
+        layer_consts: &[(f64, f64, Tick)],
+        (s, e): (Tick, Tick),
+        counts: &mut PassCounts,
+    ) -> (Vec<SegmentOutput>, SegmentTotals) {
+        let Engine {
+            world, exec, ws, ..
+        } = self;
+        let world = &*world;
+        let shared = Shared {
+            world,
+            layer_consts,
+            exhaustive: self.every_layer_event,
+            pass_end: ws.pass_end,
+        };
+        let Workspace {
+            islands,
+            island_rank,
+            island_cost,
+            xt,
+            out,
+            bounds,
+            vertex_runs,
+            calm,
+            ..
+        } = ws;
+        let calm = calm.as_ref().expect("a calm part");
+        let mut outputs = Vec::new();
+        let mut seconds = 0.0;
+        exec.join(
+            &mut || {
+                let costs = (&islands[..], &island_rank[..], &mut island_cost[..]);
+                outputs = run_bins(exec, &shared, costs, (s, e), true);
+            },
+            &mut || {
+                let clock = Instant::now();
+                let _span = trace::span("calm forces");
+                exec.for_each_chunk(xt, vertex_runs, &|k, run| {
+                    for &j in &calm.calm_in_run[k] {
+                        let j = usize::from(j);
+                        run[j] = Self::pos_at(world, k * VERTEX_RUN + j, e);
+                    }
+                });
+                (world.internal).evaluate_masked(
+                    exec,
+                    bounds,
+                    xt,
+                    &world.v,
+                    out,
+                    &calm.elements,
+                    true,
+                );
+                seconds = clock.elapsed().as_secs_f64();
+            },
+        );
+        counts.internal_seconds += seconds;
+        let totals = SegmentTotals::of(&outputs);
+        (outputs, totals)
     }
 
     /// Over ranks: what each rank keeps of this rank's islands' `outputs`
@@ -604,6 +674,59 @@ impl<E: Executor> Engine<E> {
             time: w.lattice.seconds(t),
         }))
     }
+}
+
+/// This rank's islands' segment `[s, e)` (and their kicks at the internal
+/// tick `e` when `internal`), in parallel: dealt into bins largest first
+/// (by the seconds of their last segment, which become the new costs) to
+/// the least-loaded bin, so a few tasks carry the many small islands (a
+/// task per island would cost more than most islands do). Returns their
+/// outputs in island order.
+fn run_bins<E: Executor>(
+    exec: &E,
+    shared: &Shared<'_>,
+    (islands, island_rank, island_cost): (&[Mutex<Island>], &[u32], &mut [f64]),
+    (s, e): (Tick, Tick),
+    internal: bool,
+) -> Vec<SegmentOutput> {
+    let _span = trace::span_with("islands", "islands", islands.len() as u64);
+    let (ranks, me) = (exec.ranks(), exec.rank() as u32);
+    let per_rank = if ranks == 1 {
+        BINS_PER_THREAD * exec.threads_per_rank().max(1)
+    } else {
+        BINS_PER_RANK
+    };
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); per_rank];
+    let mut load = vec![0.0f64; per_rank];
+    for k in largest_first(island_cost) {
+        if island_rank[k as usize] != me {
+            continue;
+        }
+        let b = (0..per_rank)
+            .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
+            .expect("a bin");
+        load[b] += island_cost[k as usize].max(1e-9);
+        bins[b].push(k);
+    }
+    let binned = exec.map(bins.len(), &|b| {
+        let _span = trace::span_with("island task", "islands", bins[b].len() as u64);
+        (bins[b].iter())
+            .map(|&k| {
+                let mut island = islands[k as usize].lock().expect("an island's lock");
+                island.run_segment(exec, shared, (s, e), internal)
+            })
+            .collect::<Vec<_>>()
+    });
+    let mut mine: Vec<(u32, SegmentOutput)> = bins
+        .into_iter()
+        .flatten()
+        .zip(binned.into_iter().flatten())
+        .collect();
+    mine.sort_unstable_by_key(|m| m.0);
+    for (k, output) in &mine {
+        island_cost[*k as usize] = output.seconds;
+    }
+    mine.into_iter().map(|m| m.1).collect()
 }
 
 /// What every rank agrees on of a segment's islands: their counts summed,
