@@ -22,14 +22,16 @@ impl<E: Executor> Engine<E> {
     /// island's kicks at `t` (`islands`, in island order: each vertex's
     /// terms in (layer, key) order, where the global schedule folds them),
     /// new velocities, and the new states with their breakpoints. With
-    /// `calm`, the positions of the vertices outside every island and the
-    /// internal forces of the elements among them were computed while the
-    /// islands ran ([`super::Calm`]): only the rest is computed here.
+    /// `calm_bad`, the calm part ([`super::Calm`]) ran while the islands
+    /// did — the positions of the vertices outside every island, the
+    /// internal forces of the elements among them and the folds of the
+    /// calm vertices, with each run's first calm vertex that blows up —
+    /// and only the rest is computed here.
     pub(super) fn internal_tick(
         &mut self,
         t: Tick,
         islands: &[SegmentOutput],
-        calm: bool,
+        calm_bad: Option<Vec<Option<usize>>>,
         counts: &mut super::PassCounts,
     ) -> Result<(), SimError> {
         let _span = trace::span("internal tick");
@@ -43,7 +45,7 @@ impl<E: Executor> Engine<E> {
         // partition or an island) are advanced; the others stay as they
         // were until the pass ends.
         let share = self.share.as_ref();
-        let calm = calm.then(|| ws.calm.as_ref().expect("a calm part"));
+        let calm = (calm_bad.as_ref()).map(|_| ws.calm.as_ref().expect("a calm part"));
         let live_in_run = match (share, calm) {
             (Some(_), _) => Some(&ws.live_in_run[..]),
             (None, Some(calm)) => Some(&calm.island_in_run[..]),
@@ -97,29 +99,31 @@ impl<E: Executor> Engine<E> {
         let at_internal = islands.iter().flat_map(|island| &island.at_internal);
         let owned_kicks = at_internal.filter(|&&(i, _)| owned(i as usize)).copied();
         bucket_by_run(&mut ws.kicks_by_run, runs, owned_kicks);
-        let mut v_runs = split_chunks(&mut ws.v_new, runs).into_iter();
-        let mut fused: Vec<FoldRun<'_>> = split_chunks(&mut ws.acc, runs)
-            .into_iter()
-            .map(|(_, acc)| FoldRun {
-                acc,
-                v_new: v_runs.next().expect("one per run").1,
-                bad: None,
-                changed: 0,
-            })
-            .collect();
+        let mut fused = FoldRun::runs(&mut ws.acc, &mut ws.v_new, runs);
         let (out, xt, kicks) = (&ws.out, &ws.xt, &ws.kicks_by_run);
         let owned_in_run = &ws.owned_in_run;
         let tick = TickConsts { out, xt, tsec, h };
         self.exec.for_each_item(&mut fused, &|k, r| {
             let start = k * VERTEX_RUN;
-            match share {
-                None => r.fold(w, &tick, start, &kicks[k], 0..r.acc.len(), false),
-                Some(_) => {
+            match (share, calm) {
+                (None, None) => r.fold(w, &tick, start, &kicks[k], 0..r.acc.len(), false),
+                (None, Some(calm)) => {
+                    let rest = calm.rest_fold_in_run[k].iter().map(|&j| usize::from(j));
+                    r.fold(w, &tick, start, &kicks[k], rest, false)
+                }
+                (Some(_), _) => {
                     let owned = owned_in_run[k].iter().map(|&j| usize::from(j));
                     r.fold(w, &tick, start, &kicks[k], owned, true)
                 }
             }
         });
+        if let Some(calm_bad) = calm_bad {
+            // Each run's first vertex that blows up, of the calm ones and
+            // the others.
+            for (r, calm) in fused.iter_mut().zip(calm_bad) {
+                r.bad = r.bad.into_iter().chain(calm).min();
+            }
+        }
         let bad = fused.iter().find_map(|r| r.bad);
         // Before the first non-finite vertex only.
         let changed = (fused.iter())
@@ -274,7 +278,43 @@ struct TickConsts<'a> {
     h: f64,
 }
 
-impl FoldRun<'_> {
+/// The fused per-vertex pass at tick `t` over the vertices `listed` in each
+/// run of vertices (offsets; the runs cut at `runs`) that no island kicks:
+/// the calm part of an internal tick ([`super::Calm`]). Returns each run's
+/// first listed vertex that blows up.
+pub(super) fn fold_listed<E: Executor>(
+    exec: &E,
+    w: &World,
+    (out, xt): (&[DVec3], &[DVec3]),
+    t: Tick,
+    (listed, runs): (&[Vec<u16>], &[usize]),
+    (acc, v_new): (&mut [DVec3], &mut [DVec3]),
+) -> Vec<Option<usize>> {
+    let (h, tsec) = (w.lattice.h_el(), w.lattice.seconds(t));
+    let tick = TickConsts { out, xt, tsec, h };
+    let mut fused = FoldRun::runs(acc, v_new, runs);
+    exec.for_each_item(&mut fused, &|k, r| {
+        let js = listed[k].iter().map(|&j| usize::from(j));
+        r.fold(w, &tick, k * VERTEX_RUN, &[], js, false);
+    });
+    fused.iter().map(|r| r.bad).collect()
+}
+
+impl<'a> FoldRun<'a> {
+    /// One per run of vertices (cut at `runs`) over the impulses `acc` and
+    /// new velocities `v_new`.
+    fn runs(acc: &'a mut [DVec3], v_new: &'a mut [DVec3], runs: &[usize]) -> Vec<Self> {
+        let mut v_runs = split_chunks(v_new, runs).into_iter();
+        (split_chunks(acc, runs).into_iter())
+            .map(|(_, acc)| FoldRun {
+                acc,
+                v_new: v_runs.next().expect("one per run").1,
+                bad: None,
+                changed: 0,
+            })
+            .collect()
+    }
+
     /// The fused pass over the run's vertices at the offsets `js`
     /// (ascending; every vertex of the run on one memory, the owned ones
     /// over ranks) from vertex `start`: the ordered fold of the internal

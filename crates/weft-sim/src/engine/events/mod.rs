@@ -120,12 +120,13 @@ pub(super) struct Workspace {
 /// What of an internal tick does not wait for the contact islands of the
 /// segment before it (one memory). Between two internal ticks the islands
 /// move only their own vertices, so every other vertex's position at the
-/// tick, and the internal forces of the elements all of whose vertices lie
-/// outside every island, are known when the segment starts: they are
-/// computed while the islands run ([`Executor::join`]: a giant island keeps
-/// one thread, the others take these), the rest at the tick. Each position
-/// and each element's slots are computed once, from the same state, so the
-/// bits are those of computing everything at the tick.
+/// tick, the internal forces of the elements all of whose vertices lie
+/// outside every island, and the fold and new velocity of each vertex
+/// outside every island all of whose elements are such, are known when the
+/// segment starts: they are computed while the islands run
+/// ([`Executor::join`]: a giant island keeps one thread, the others take
+/// these), the rest at the tick. Each is computed once, from the same
+/// state, so the bits are those of computing everything at the tick.
 #[derive(Debug)]
 pub(super) struct Calm {
     /// The elements with no island vertex.
@@ -134,6 +135,11 @@ pub(super) struct Calm {
     /// others.
     island_in_run: Vec<Vec<u16>>,
     calm_in_run: Vec<Vec<u16>>,
+    /// Per run of vertices: the offsets of the vertices outside every
+    /// island with only calm elements (their fold is calm too), and of the
+    /// others.
+    calm_fold_in_run: Vec<Vec<u16>>,
+    rest_fold_in_run: Vec<Vec<u16>>,
 }
 
 /// The offsets in each run of [`VERTEX_RUN`] vertices (cut at `runs`) of
@@ -296,10 +302,18 @@ impl<E: Executor> Engine<E> {
                 break;
             }
             segments += 1;
-            let calm = internal && self.ws.calm.is_some();
-            let (outputs, totals) = match calm {
-                true => self.run_islands_and_calm(&layer_consts, (s, e), &mut counts),
-                false => self.run_islands(&layer_consts, (s, e), internal)?,
+            // On one memory the calm part of the internal tick runs beside
+            // the islands; each run of vertices' first calm vertex that
+            // blows up comes back.
+            let (outputs, totals, calm_bad) = match internal && self.ws.calm.is_some() {
+                true => {
+                    let (o, t, bad) = self.run_islands_and_calm(&layer_consts, (s, e), &mut counts);
+                    (o, t, Some(bad))
+                }
+                false => {
+                    let (o, t) = self.run_islands(&layer_consts, (s, e), internal)?;
+                    (o, t, None)
+                }
             };
             if let Some(blew_up) = self.apply_islands(&outputs, &totals, t0, &mut counts)? {
                 // A speculative pass that blew up in an island (typically a
@@ -314,7 +328,7 @@ impl<E: Executor> Engine<E> {
             if !internal {
                 break;
             }
-            match self.internal_tick(b, &outputs, calm, &mut counts) {
+            match self.internal_tick(b, &outputs, calm_bad, &mut counts) {
                 Ok(()) => {}
                 Err(e @ SimError::NonFinite { .. }) => {
                     // As above, at the internal tick: the pass ends at `b`,
@@ -419,10 +433,24 @@ impl<E: Executor> Engine<E> {
             for &i in (0..packs.len()).flat_map(|k| packs.vertices_of(k)) {
                 in_island[i as usize] = true;
             }
+            let elements = w.internal.mask_where(|i| !in_island[i as usize]);
+            // A vertex folds calm when it is outside every island and
+            // every element it sums is calm.
+            let mut waits = in_island.clone();
+            let internal = &w.internal;
+            let stretch =
+                (internal.stretch.iter().zip(&elements.stretch)).map(|(e, &c)| (&e.verts[..], c));
+            let hinges =
+                (internal.hinges.iter().zip(&elements.hinges)).map(|(e, &c)| (&e.verts[..], c));
+            for (verts, _) in stretch.chain(hinges).filter(|(_, calm)| !calm) {
+                verts.iter().for_each(|&i| waits[i as usize] = true);
+            }
             Calm {
-                elements: w.internal.mask_where(|i| !in_island[i as usize]),
+                elements,
                 island_in_run: in_runs(&ws.vertex_runs, |i| in_island[i]),
                 calm_in_run: in_runs(&ws.vertex_runs, |i| !in_island[i]),
+                calm_fold_in_run: in_runs(&ws.vertex_runs, |i| !waits[i]),
+                rest_fold_in_run: in_runs(&ws.vertex_runs, |i| waits[i]),
             }
         });
         if let Some(share) = &self.share {
@@ -502,14 +530,16 @@ impl<E: Executor> Engine<E> {
     /// On one memory, every island's segment `[s, e)` and its kicks at the
     /// internal tick `e`, while the calm part of that tick ([`Calm`]) runs
     /// beside it: the positions at `e` of the vertices outside every
-    /// island, and the internal forces of the elements among them. Its wall
-    /// seconds count as internal-force time.
+    /// island, the internal forces of the elements among them, and the
+    /// calm vertices' folds and new velocities, of which each run's first
+    /// that blows up is returned. Its wall seconds count as internal-force
+    /// time.
     fn run_islands_and_calm(
         &mut self,
         layer_consts: &[(f64, f64, Tick)],
         (s, e): (Tick, Tick),
         counts: &mut PassCounts,
-    ) -> (Vec<SegmentOutput>, SegmentTotals) {
+    ) -> (Vec<SegmentOutput>, SegmentTotals, Vec<Option<usize>>) {
         let Engine {
             world, exec, ws, ..
         } = self;
@@ -526,6 +556,8 @@ impl<E: Executor> Engine<E> {
             island_cost,
             xt,
             out,
+            acc,
+            v_new,
             bounds,
             vertex_runs,
             calm,
@@ -533,7 +565,7 @@ impl<E: Executor> Engine<E> {
         } = ws;
         let calm = calm.as_ref().expect("a calm part");
         let mut outputs = Vec::new();
-        let mut seconds = 0.0;
+        let (mut seconds, mut bad) = (0.0, Vec::new());
         exec.join(
             &mut || {
                 let costs = (&islands[..], &island_rank[..], &mut island_cost[..]);
@@ -557,12 +589,22 @@ impl<E: Executor> Engine<E> {
                     &calm.elements,
                     true,
                 );
+                let runs = (&calm.calm_fold_in_run[..], &vertex_runs[..]);
+                let slots = (&out[..], &xt[..]);
+                bad = internal::fold_listed(
+                    exec,
+                    world,
+                    slots,
+                    e,
+                    runs,
+                    (&mut acc[..], &mut v_new[..]),
+                );
                 seconds = clock.elapsed().as_secs_f64();
             },
         );
         counts.internal_seconds += seconds;
         let totals = SegmentTotals::of(&outputs);
-        (outputs, totals)
+        (outputs, totals, bad)
     }
 
     /// Over ranks: what each rank keeps of this rank's islands' `outputs`
