@@ -241,9 +241,11 @@ impl<E: Executor> Engine<E> {
 
 /// Calls `f` with each offset below `end` of a run of vertices, ascending:
 /// every one (`listed` none: one memory), or those `listed` (over ranks: the
-/// vertices the rank keeps current, [`super::Workspace`]'s `live_in_run`).
+/// vertices the rank keeps current, [`super::Workspace`]'s `live_in_run`;
+/// on one memory with islands, the island vertices or the others, the two
+/// sides of [`super::Calm`]).
 #[inline]
-fn each_in_run(listed: Option<&[u16]>, end: usize, mut f: impl FnMut(usize)) {
+pub(super) fn each_in_run(listed: Option<&[u16]>, end: usize, mut f: impl FnMut(usize)) {
     match listed {
         None => (0..end).for_each(f),
         Some(list) => {

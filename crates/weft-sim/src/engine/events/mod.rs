@@ -575,10 +575,9 @@ impl<E: Executor> Engine<E> {
                 let clock = Instant::now();
                 let _span = trace::span("calm forces");
                 exec.for_each_chunk(xt, vertex_runs, &|k, run| {
-                    for &j in &calm.calm_in_run[k] {
-                        let j = usize::from(j);
+                    internal::each_in_run(Some(&calm.calm_in_run[k]), run.len(), |j| {
                         run[j] = Self::pos_at(world, k * VERTEX_RUN + j, e);
-                    }
+                    });
                 });
                 (world.internal).evaluate_masked(
                     exec,
