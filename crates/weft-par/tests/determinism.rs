@@ -221,6 +221,14 @@ fn twister_hash<E: Executor>(scene: &weft_io::scene::Scene, exec: E) -> String {
     e.state_hash()
 }
 
+/// A digest of the positions' x bits: the state an error leaves (the window
+/// start's, on every executor).
+fn x_bits<E: Executor>(e: &Engine<E>) -> u64 {
+    (e.world.x.iter())
+        .map(|p| p.x.to_bits())
+        .fold(0, u64::wrapping_add)
+}
+
 /// A vertex whose mass turns out not to be a number: its first new velocity
 /// is not finite. Every executor stops at the same vertex with the same
 /// error (over ranks the vertex's owner finds it; the other ranks count
@@ -237,13 +245,7 @@ fn a_blow_up_stops_every_executor_at_the_same_vertex() {
         e.world.inv_mass[k] = f64::NAN;
         let err = e.step_window().map(|_| ()).unwrap_err();
         // (the state the error leaves: the window start's, on every executor)
-        let x_bits = e
-            .world
-            .x
-            .iter()
-            .map(|p| p.x.to_bits())
-            .fold(0, u64::wrapping_add);
-        (err.to_string(), x_bits)
+        (err.to_string(), x_bits(&e))
     }
     let reference = broken(&scene, Serial);
     assert!(reference.0.contains("non-finite"), "{}", reference.0);
@@ -306,13 +308,7 @@ fn a_blow_up_in_contact_stops_every_executor_at_the_same_vertex() {
         // passes are rolled back with more layers near the vertex until the
         // cap, whose message names the last stencil detected.)
         let err = e.step_window().map(|_| ()).unwrap_err();
-        let x_bits = e
-            .world
-            .x
-            .iter()
-            .map(|p| p.x.to_bits())
-            .fold(0, u64::wrapping_add);
-        (err.to_string(), x_bits)
+        (err.to_string(), x_bits(&e))
     }
     let reference = broken(&scene, Serial);
     assert!(reference.0.contains("blew up"), "{}", reference.0);
