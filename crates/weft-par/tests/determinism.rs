@@ -37,6 +37,8 @@ struct Outcome {
     messages: u64,
     /// The bits of every vertex's position, velocity and clock at the end.
     motion: Vec<[u64; 7]>,
+    /// Every window's statistics, less the wall-clock times.
+    stats: Vec<weft_sim::WindowStats>,
 }
 
 fn run<E: Executor>(exec: E, partitions: usize) -> Outcome {
@@ -44,26 +46,31 @@ fn run<E: Executor>(exec: E, partitions: usize) -> Outcome {
 }
 
 fn run_with<E: Executor>(exec: E, partitions: usize, predict: bool) -> Outcome {
+    run_set(exec, partitions, &[format!("contact.predict={predict}")])
+}
+
+/// The fixture with the scene settings `set` added.
+fn run_set<E: Executor>(exec: E, partitions: usize, set: &[String]) -> Outcome {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/crumple.toml");
-    let scene = load_scene(
-        &path,
-        &[
-            "size=300".into(),
-            "time.end=0.24".into(),
-            "time.steps_per_window=25".into(),
-            format!("partitions={partitions}"),
-            format!("contact.predict={predict}"),
-        ],
-    )
-    .unwrap();
+    let mut sets = vec![
+        "size=300".into(),
+        "time.end=0.24".into(),
+        "time.steps_per_window=25".into(),
+        format!("partitions={partitions}"),
+    ];
+    sets.extend_from_slice(set);
+    let scene = load_scene(&path, &sets).unwrap();
     let world = weft_par::build_world(&scene.world).unwrap();
     assert_eq!(world.partitioning.count, partitions);
     let mut e = Engine::new(world, exec).unwrap();
     let end = e.world.lattice.window_end_at_or_after(scene.end_time);
     let mut peak = 0;
     let mut spanning_at_peak = (0, 0);
+    let mut stats = Vec::new();
     while e.world.tick < end {
-        e.step_window().unwrap();
+        let mut s = e.step_window().unwrap();
+        (s.wall_seconds, s.stage_seconds) = (0.0, Default::default());
+        stats.push(s);
         let active = &e.world.layers.stencils;
         if active.len() > peak {
             peak = active.len();
@@ -92,6 +99,7 @@ fn run_with<E: Executor>(exec: E, partitions: usize, predict: bool) -> Outcome {
                 ]
             })
             .collect(),
+        stats,
     }
 }
 
@@ -183,6 +191,54 @@ fn prediction_changes_the_layers_not_the_motion() {
         on.rollbacks,
         off.rollbacks
     );
+}
+
+/// With `contact.split_islands` the far stencils stay out of the islands
+/// and are promoted into them when they may come within `eta_1`
+/// (`engine/events/far.rs`): the motion and the layers — so the fixture's
+/// hash — are those of the islands built over every active stencil, on
+/// `Serial`, `Threads` and `Ranks`, and every window's statistics (layer
+/// evaluations, far stencils, promotions, reruns) agree on every executor:
+/// the units and their promotions follow from the state, not from where
+/// they run.
+#[test]
+fn split_islands_keep_the_bits_on_every_executor() {
+    let split = ["contact.split_islands=true".to_string()];
+    let reference = run_set(Serial, 4, &split);
+    assert_eq!(reference.hash, FIXTURE_HASH, "serial, split");
+    let whole = run(Serial, 4);
+    assert!(
+        whole.motion == reference.motion,
+        "splitting changed the motion"
+    );
+    let sum =
+        |f: &dyn Fn(&weft_sim::WindowStats) -> u64| -> u64 { reference.stats.iter().map(f).sum() };
+    let (far, promoted) = (sum(&|s| s.far_stencils), sum(&|s| s.far_promoted));
+    println!(
+        "far {far}, promoted {promoted}, reruns {}",
+        sum(&|s| s.island_reruns)
+    );
+    assert!(
+        far > 1000 && promoted > 100,
+        "far {far}, promoted {promoted}"
+    );
+    let threads = run_set(Threads::new(2).unwrap(), 4, &split);
+    assert_eq!(threads.hash, FIXTURE_HASH, "2 threads, split");
+    assert_eq!(
+        threads.stats, reference.stats,
+        "2 threads, split: statistics"
+    );
+    for (ranks, threads) in [(2, 1), (3, 2)] {
+        let local = |_| Threads::new(threads).unwrap();
+        let outcomes = in_process(ranks, local, |exec| run_set(exec, 4, &split));
+        for (rank, o) in outcomes.iter().enumerate() {
+            let label = format!("rank {rank} of {ranks} ({threads} threads), split");
+            assert_eq!(o.hash, FIXTURE_HASH, "{label}");
+            for (a, b) in o.stats.iter().zip(&reference.stats) {
+                assert_eq!(a, b, "{label}: statistics of window {}", b.window);
+            }
+        }
+    }
 }
 
 /// A twister (a scripted rod, the sleeve's ends pinned to scripts: vertices

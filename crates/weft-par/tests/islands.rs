@@ -115,6 +115,119 @@ fn islands_on_threads_give_the_bits_of_the_global_schedule() {
     assert!(kicks > 1000, "too little contact: {kicks} kicks");
 }
 
+/// With the far stencils kept out of the islands (`split_far_stencils`)
+/// and promoted into them when they may come within `eta_1`, every window
+/// ends in the global schedule's bits, on the scenes above (cloths falling
+/// onto a ball and onto each other, where a thousand far stencils are
+/// promoted). The reruns after a speed broke a cap are held on `crumple`
+/// (`determinism.rs`, `split_islands_keep_the_bits_on_every_executor`).
+#[test]
+fn far_stencils_split_the_islands_with_the_bits_of_the_global_schedule() {
+    let mut rng = Rng(0x1514);
+    let (mut far, mut promoted) = (0u64, 0u64);
+    for case in 0..4 {
+        let spec = scene(&mut rng, case);
+        let world = weft_par::build_world(&spec).unwrap();
+        let mut global = Engine::new(world.clone(), Serial).unwrap();
+        global.run_as_one_island(true);
+        let mut split = Engine::new(world, Threads::new(2).unwrap()).unwrap();
+        split.split_far_stencils(true);
+        for w in 0..30 {
+            global.step_window().unwrap();
+            let b = split.step_window().unwrap();
+            let what = format!("case {case}, window {w}");
+            assert_eq!(global.world.x, split.world.x, "{what}: positions");
+            assert_eq!(global.world.v, split.world.v, "{what}: velocities");
+            assert_eq!(global.world.tau, split.world.tau, "{what}: clocks");
+            assert_eq!(global.world.layers, split.world.layers, "{what}: layers");
+            far += b.far_stencils;
+            promoted += b.far_promoted;
+        }
+    }
+    println!("{far} far stencils at pass starts, {promoted} promoted");
+    assert!(
+        far > 2000 && promoted > 500,
+        "{far} far, {promoted} promoted"
+    );
+}
+
+/// A paddle moving up at `speed` strikes a cloth at rest, which flies into
+/// a second cloth hovering just above it: the two cloths' stencils are far
+/// (certified outside `eta_1` while both rest), until the paddle's kicks
+/// break their speed caps in the middle of a segment.
+fn paddle(speed: f64, gap: f64) -> WorldSpec {
+    let flat = |z: f64, size: f64| grid(DVec3::Z * z, DVec3::X, DVec3::Y, [size, size], [6, 6]);
+    let cloth = |name: &str, z: f64| ObjectSpec {
+        friction: None,
+        name: name.into(),
+        mesh: flat(z, 0.024),
+        kind: ObjectKind::Cloth {
+            material: Material::plate(0.15, 2.0e5, 0.3, 4.0e-4),
+            rest: None,
+            velocity: vec![DVec3::ZERO; 36],
+        },
+    };
+    WorldSpec {
+        objects: vec![
+            ObjectSpec {
+                friction: None,
+                name: "paddle".into(),
+                mesh: flat(-0.004, 0.04),
+                kind: ObjectKind::Obstacle {
+                    motion: Motion::Translate {
+                        velocity: DVec3::Z * speed,
+                        until: None,
+                    },
+                },
+            },
+            cloth("struck", 0.0),
+            cloth("hovering", 1e-3 + gap),
+        ],
+        pins: vec![],
+        gravity: DVec3::ZERO,
+        contact: ContactConfig {
+            thickness: 1e-3,
+            ..Default::default()
+        },
+        time: TimeConfig {
+            internal_step: None,
+            beta: 0.3,
+            steps_per_window: 20,
+        },
+        limits: LimitsConfig::default(),
+        partitions: 2,
+        workers: 1,
+    }
+}
+
+/// The speed caps hold the far stencils' certificates within a segment:
+/// a cloth struck by a paddle flies into another that rested just above
+/// it, inside the segment whose kicks launched it. The islands must report
+/// the broken caps, the check after the segment promote the stencils and
+/// the segment run again — or the first kicks between the cloths are lost
+/// (without the reports this fails).
+#[test]
+fn a_cloth_launched_within_a_segment_promotes_its_far_stencils() {
+    let mut reruns = 0;
+    for (speed, gap) in [(2.0, 5e-5), (4.0, 1e-4), (8.0, 2e-4)] {
+        let world = weft_par::build_world(&paddle(speed, gap)).unwrap();
+        let mut global = Engine::new(world.clone(), Serial).unwrap();
+        global.run_as_one_island(true);
+        let mut split = Engine::new(world, Serial).unwrap();
+        split.split_far_stencils(true);
+        for w in 0..20 {
+            let a = global.step_window().unwrap();
+            let b = split.step_window().unwrap();
+            let what = format!("paddle at {speed} m/s, gap {gap}, window {w}");
+            assert_eq!(global.world.x, split.world.x, "{what}: positions");
+            assert_eq!(global.world.v, split.world.v, "{what}: velocities");
+            assert_eq!(a.rollbacks, b.rollbacks, "{what}: rollbacks");
+            reruns += b.island_reruns;
+        }
+    }
+    assert!(reruns > 0, "no segment ran again");
+}
+
 /// A checkpointed layer on kinematic vertices only (no broad phase makes
 /// one; a hand-edited checkpoint can) is refused by `restore`, not left to
 /// fail when the islands are built.

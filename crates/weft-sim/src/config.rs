@@ -24,6 +24,13 @@ pub struct ContactConfig {
     /// `Default` and in scenes (`contact.predict`).
     #[serde(default)]
     pub predict: bool,
+    /// Keep the far stencils (two dynamic vertices, certified outside
+    /// `eta_1`) out of the contact islands, promoting one into them when it
+    /// may come within `eta_1` (`engine/events/far.rs`): smaller islands,
+    /// the same trajectory. Off in `Default` and in scenes
+    /// (`contact.split_islands`).
+    #[serde(default)]
+    pub split_islands: bool,
     /// Coulomb friction coefficient (0 = off).
     pub friction: f64,
     /// Rollbacks of one window before the run stops with a diagnostic.
@@ -40,6 +47,7 @@ impl Default for ContactConfig {
             layers_per_detection: 5,
             retire_after_windows: 3,
             predict: true,
+            split_islands: false,
             friction: 0.0,
             max_rollbacks: 1000,
         }

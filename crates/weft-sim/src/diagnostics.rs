@@ -34,6 +34,20 @@ pub struct WindowStats {
     pub islands: u64,
     #[serde(default)]
     pub largest_island_layer_events: u64,
+    /// With `contact.split_islands`: far stencils kept out of the islands
+    /// when the committed pass started, those promoted into them during it,
+    /// and the island units that ran a segment again after a promotion.
+    #[serde(default)]
+    pub far_stencils: u64,
+    #[serde(default)]
+    pub far_promoted: u64,
+    #[serde(default)]
+    pub island_reruns: u64,
+    /// With `contact.split_islands`: the layer events of the largest unit
+    /// of islands at the committed pass's end (what bounds running them in
+    /// parallel, as `largest_island_layer_events` does without).
+    #[serde(default)]
+    pub largest_unit_layer_events: u64,
     /// Rollbacks of this window.
     pub rollbacks: u32,
     /// Active stencils at commit (after retirement) and their depth histogram

@@ -206,3 +206,73 @@ fn packs_are_unions_of_whole_islands() {
         );
     }
 }
+
+/// Packed within groups (the units of one pack of the whole active set):
+/// every pack holds islands of one group only, packs come group by group,
+/// every island lands in exactly one pack, and within a group every pack of
+/// small islands but its last reaches the minimum. One group gives
+/// `packed`'s packs.
+#[test]
+fn packs_within_groups_never_mix_groups() {
+    let mut rng = Rng(12);
+    for case in 0..200 {
+        let Some((active, inv_mass)) = random_case(&mut rng, 80, 0.3, 60) else {
+            continue;
+        };
+        let islands = Islands::build(&active, &inv_mass);
+        let min = 1 + rng.below(8) as usize;
+        assert_eq!(
+            islands.packed_within(|_| 7, min),
+            islands.packed(min),
+            "case {case}"
+        );
+        let groups = 1 + rng.below(4) as u32;
+        let group: Vec<u32> = (0..islands.len())
+            .map(|_| rng.below(groups as u64) as u32)
+            .collect();
+        let packs = islands.packed_within(|k| group[k], min);
+        let mut island_of = vec![usize::MAX; active.len()];
+        for k in 0..islands.len() {
+            for &a in islands.stencils_of(k) {
+                island_of[a as usize] = k;
+            }
+        }
+        let mut packed = vec![false; islands.len()];
+        let mut pack_group = Vec::new();
+        for p in 0..packs.len() {
+            let members: BTreeSet<usize> = (packs.stencils_of(p).iter())
+                .map(|&a| island_of[a as usize])
+                .collect();
+            let groups: BTreeSet<u32> = members.iter().map(|&k| group[k]).collect();
+            assert_eq!(
+                groups.len(),
+                1,
+                "case {case}: pack {p} mixes groups {groups:?}"
+            );
+            for &k in &members {
+                assert!(!packed[k], "case {case}: island {k} in two packs");
+                packed[k] = true;
+            }
+            let g = *groups.first().expect("a group");
+            let small = members.iter().all(|&k| islands.stencils_of(k).len() < min);
+            pack_group.push((g, small, packs.stencils_of(p).len()));
+        }
+        assert!(
+            packed.iter().all(|&p| p),
+            "case {case}: every island packed"
+        );
+        assert!(
+            pack_group.windows(2).all(|w| w[0].0 <= w[1].0),
+            "case {case}: group order"
+        );
+        for (p, &(g, small, len)) in pack_group.iter().enumerate() {
+            let last_small_of_group = !pack_group[p + 1..].iter().any(|&(h, s, _)| h == g && s);
+            if small && !last_small_of_group {
+                assert!(
+                    len >= min,
+                    "case {case}: pack {p} of group {g} holds {len} < {min}"
+                );
+            }
+        }
+    }
+}

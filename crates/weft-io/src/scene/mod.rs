@@ -170,9 +170,15 @@ pub fn parse_scene(text: &str, path: &Path, overrides: &[String]) -> Result<Scen
     }
     // Nor do the layer activation policies: which layers are active never
     // changes the trajectory (policy independence, `acm-spec.md` §4), so a
-    // run resumes, and `weft bench` starts, under another policy.
+    // run resumes, and `weft bench` starts, under another policy; nor how
+    // the penalty stage is split into islands (the same bits).
     if let Some(contact) = table.get_mut("contact").and_then(|t| t.as_table_mut()) {
-        for key in ["predict", "layers_per_detection", "retire_after_windows"] {
+        for key in [
+            "predict",
+            "layers_per_detection",
+            "retire_after_windows",
+            "split_islands",
+        ] {
             contact.remove(key);
         }
     }
@@ -1455,6 +1461,7 @@ fn build(file: SceneFile, path: &Path, overrides: &[String]) -> Result<Scene, Sc
             layers_per_detection: file.contact.layers_per_detection,
             retire_after_windows: file.contact.retire_after_windows,
             predict: file.contact.predict,
+            split_islands: file.contact.split_islands,
             friction: file.contact.friction,
             max_rollbacks: file.contact.max_rollbacks,
         },

@@ -147,6 +147,9 @@ pub struct ContactSection {
     /// Activate layers ahead of detection from the extrapolated motion.
     #[serde(default = "default_predict")]
     pub predict: bool,
+    /// Keep far stencils out of the contact islands while certified.
+    #[serde(default)]
+    pub split_islands: bool,
     /// Rollback cap per window.
     #[serde(default = "default_max_rollbacks")]
     pub max_rollbacks: u32,
@@ -182,6 +185,7 @@ impl Default for ContactSection {
             friction: 0.0,
             retire_after_windows: default_retire(),
             predict: default_predict(),
+            split_islands: false,
             max_rollbacks: default_max_rollbacks(),
         }
     }

@@ -123,6 +123,9 @@ struct Sample {
     /// window's largest island.
     islands: u64,
     largest_island_layer_events: u64,
+    /// Far stencils at the pass starts, promoted, and unit reruns, summed
+    /// over windows (`contact.split_islands`).
+    far: [u64; 4],
     rollbacks: u64,
     /// Layers activated by prediction and by detection, and the predicted
     /// ones never reached, summed over windows.
@@ -301,6 +304,10 @@ pub struct BenchReport {
     /// Contact islands per window, and the largest island's share of the
     /// layer events (what bounds running islands in parallel).
     pub islands_per_window: f64,
+    /// Per window: far stencils at the pass start, promoted, unit reruns.
+    pub far_per_window: [f64; 3],
+    /// The largest unit's share of the layer events (split islands).
+    pub largest_unit_share: Option<f64>,
     pub largest_island_share: Option<f64>,
     /// Active stencils and their deepest layer after the last window.
     pub end_active_stencils: u64,
@@ -503,6 +510,8 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         internal_evaluations_per_window: 0.0,
         layer_events_per_window: 0.0,
         islands_per_window: 0.0,
+        far_per_window: [0.0; 3],
+        largest_unit_share: None,
         largest_island_share: None,
         end_active_stencils: 0,
         end_max_depth: 0,
@@ -930,6 +939,10 @@ fn measure<E: Executor>(
         s.layer_events += w.layer_events;
         s.islands += w.islands;
         s.largest_island_layer_events += w.largest_island_layer_events;
+        s.far[0] += w.far_stencils;
+        s.far[1] += w.far_promoted;
+        s.far[2] += w.island_reruns;
+        s.far[3] += w.largest_unit_layer_events;
         s.rollbacks += u64::from(w.rollbacks);
         s.active_stencils = w.active_stencils;
         s.max_depth = w.max_depth;
@@ -983,6 +996,9 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
     r.internal_evaluations_per_window = first.internal_evaluations as f64 / windows;
     r.layer_events_per_window = first.layer_events as f64 / windows;
     r.islands_per_window = first.islands as f64 / windows;
+    r.far_per_window = [0, 1, 2].map(|k| first.far[k] as f64 / windows);
+    r.largest_unit_share = (first.layer_events > 0 && first.far[0] > 0)
+        .then(|| first.far[3] as f64 / first.layer_events as f64);
     r.largest_island_share = (first.layer_events > 0)
         .then(|| first.largest_island_layer_events as f64 / first.layer_events as f64);
     r.end_active_stencils = first.active_stencils;
@@ -1188,6 +1204,19 @@ fn table(r: &BenchReport) -> String {
         r.end_island_sizes,
         r.end_largest_island
     );
+    if r.far_per_window[0] > 0.0 {
+        let _ = writeln!(
+            s,
+            "far         per window {:.0} far stencils kept out of the islands, {:.0} promoted \
+             into them, {:.1} units run again; the largest unit holds {} of the layer events \
+             (contact.split_islands)",
+            r.far_per_window[0],
+            r.far_per_window[1],
+            r.far_per_window[2],
+            r.largest_unit_share
+                .map_or("none".to_string(), |f| format!("{:.1} %", 100.0 * f))
+        );
+    }
     let _ = writeln!(
         s,
         "end         {} active stencils, depth {}, state hash {} ({})",

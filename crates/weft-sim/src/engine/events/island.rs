@@ -24,7 +24,6 @@ use weft_geom::distance::{stencil_closest, Closest};
 use crate::clock::Tick;
 use crate::dormancy::Dormancy;
 use crate::executor::Executor;
-use crate::islands::Islands;
 use crate::layers::{penalty_kick, FrictionClamp, PenaltyImpulse};
 use crate::trace;
 use crate::world::World;
@@ -53,7 +52,12 @@ enum Verdict {
 /// `x` was therefore at least `d0 - move_a - move_b` apart. The subtracted
 /// slack covers the rounding of `d0` and of the displacement norms (a few ulps
 /// of the coordinates, bounded generously by `2^-40 (1 + max |coordinate|)`).
-fn distance_lower_bound(kind: StencilKind, d0: f64, x0: &[DVec3; 4], x: &[DVec3; 4]) -> f64 {
+pub(super) fn distance_lower_bound(
+    kind: StencilKind,
+    d0: f64,
+    x0: &[DVec3; 4],
+    x: &[DVec3; 4],
+) -> f64 {
     let split = split_of(kind);
     let moved =
         |r: std::ops::Range<usize>| r.map(|j| (x[j] - x0[j]).length()).fold(0.0f64, f64::max);
@@ -96,7 +100,7 @@ fn split_of(kind: StencilKind) -> usize {
 /// rounding adds at most `1025 · 2 u M < 2^-42 M`. The slack
 /// `2^-39 (1 + max |x| + |lower|)` covers it and the `2^-40 (1 + max |x|)`
 /// of the distance's own rounding ([`distance_lower_bound`]).
-fn sleep(
+pub(super) fn sleep(
     kind: StencilKind,
     lower: f64,
     eta: f64,
@@ -140,6 +144,10 @@ pub(super) struct Shared<'a> {
     pub exhaustive: bool,
     /// The end of the pass: the islands and their dormancy end there.
     pub pass_end: Tick,
+    /// Per vertex, the far stencils' speed cap (`super::far`; empty: no
+    /// far stencil): a new speed above it is reported in
+    /// [`SegmentOutput::fast`].
+    pub far_cap: &'a [f64],
 }
 
 impl Shared<'_> {
@@ -176,6 +184,11 @@ pub(super) struct SegmentOutput {
     /// `(vertex, impulse)` in fold order: each vertex's normal and clamped
     /// friction impulses in (layer, key) order, as separate terms.
     pub at_internal: Vec<(u32, DVec3)>,
+    /// Every new velocity of a vertex whose speed broke its far stencils'
+    /// cap (`Shared::far_cap`): `(vertex, speed²)`. Read where the island
+    /// ran, never sent.
+    #[serde(skip)]
+    pub fast: Vec<(u32, f64)>,
     /// Exact evaluations, kicks and the smallest distance evaluated.
     pub evaluations: u64,
     pub kicks: u64,
@@ -185,6 +198,10 @@ pub(super) struct SegmentOutput {
     pub blew_up: Option<(Tick, u32)>,
     /// Wall seconds the segment took (the island's cost for the next one).
     pub seconds: f64,
+    /// What the far stencils did (in the one output per segment and rank
+    /// that carries them, `super::units`).
+    #[serde(skip)]
+    pub far: super::units::FarCounts,
 }
 
 /// A contact island's stencils, its vertices' state while it runs, and
@@ -230,20 +247,18 @@ pub(super) struct Island {
 }
 
 impl Island {
-    /// Island `k` of `islands` over the pass's `active` stencils (key,
-    /// depth), all awake, for a pass from tick `start`.
-    pub(super) fn new(
-        islands: &Islands,
-        k: usize,
-        active: &[(StencilKey, u32)],
+    /// The island of the dynamic `vertices` (ascending) of the stencils
+    /// `members` (key, depth; in key order), all awake, from tick `start`,
+    /// where the world holds its vertices' state.
+    pub(super) fn of(
+        vertices: Vec<u32>,
+        members: Vec<(StencilKey, u32)>,
         w: &World,
         start: Tick,
     ) -> Self {
-        let vertices = islands.vertices_of(k).to_vec();
         let local = |i: u32| vertices.binary_search(&i).map_or(NONE, |j| j as u32);
-        let stencils = islands.stencils_of(k);
-        let mut kinematic: Vec<u32> = (stencils.iter())
-            .flat_map(|&a| active[a as usize].0.v)
+        let mut kinematic: Vec<u32> = (members.iter())
+            .flat_map(|a| a.0.v)
             .filter(|&i| local(i) == NONE)
             .collect();
         kinematic.sort_unstable();
@@ -253,16 +268,13 @@ impl Island {
             NONE => (n + kinematic.binary_search(&i).expect("listed")) as u32,
             j => j,
         };
-        let members: Vec<Member> = (stencils.iter())
-            .map(|&a| {
-                let (key, depth) = active[a as usize];
-                Member {
-                    key,
-                    depth,
-                    local: key.v.map(local),
-                    watch: key.v.map(watch),
-                    mu: w.stencil_friction(&key),
-                }
+        let members: Vec<Member> = (members.iter())
+            .map(|&(key, depth)| Member {
+                key,
+                depth,
+                local: key.v.map(local),
+                watch: key.v.map(watch),
+                mu: w.stencil_friction(&key),
             })
             .collect();
         let mut dormancy = Dormancy::default();
@@ -299,6 +311,16 @@ impl Island {
         }
     }
 
+    /// Its dynamic vertices, ascending.
+    pub(super) fn vertices(&self) -> &[u32] {
+        &self.vertices
+    }
+
+    /// Its stencils (key, depth), in key order.
+    pub(super) fn members(&self) -> impl Iterator<Item = (StencilKey, u32)> + '_ {
+        self.members.iter().map(|m| (m.key, m.depth))
+    }
+
     /// Runs the island's penalty-only batches at the ticks of `[s, e)` (no
     /// internal tick lies in it) and, when `internal_at_e`, computes its
     /// kicks at the internal tick `e`. The world holds the island's vertices'
@@ -309,12 +331,7 @@ impl Island {
         sh: &Shared<'_>,
         (s, e): (Tick, Tick),
         internal_at_e: bool,
-    ) -> SegmentOutput {
-        let clock = Instant::now();
-        let mut out = SegmentOutput {
-            min_separation: f64::INFINITY,
-            ..Default::default()
-        };
+    ) -> Option<SegmentOutput> {
         if std::mem::take(&mut self.after_internal) {
             // The internal tick before this segment gave every vertex a new
             // velocity (and a breakpoint): stencils whose vertices broke
@@ -333,7 +350,16 @@ impl Island {
         };
         let idle =
             self.dormancy.max_reach() == 0 && self.dormancy.next_due().is_none_or(|due| due > last);
-        if !idle {
+        self.after_internal = internal_at_e;
+        if idle {
+            return None;
+        }
+        let clock = Instant::now();
+        let mut out = SegmentOutput {
+            min_separation: f64::INFINITY,
+            ..Default::default()
+        };
+        {
             self.run_ticks(exec, sh, s, e, &mut out);
             if internal_at_e && out.blew_up.is_none() {
                 let firing: Vec<u32> = (1..=self.max_depth)
@@ -352,9 +378,8 @@ impl Island {
             }
             self.moved_list.clear();
         }
-        self.after_internal = internal_at_e;
         out.seconds = clock.elapsed().as_secs_f64();
-        out
+        Some(out)
     }
 
     /// The penalty-only batches at the ticks of `[s, e)` where one of the
@@ -646,7 +671,7 @@ impl Island {
         if internal {
             Ok(())
         } else {
-            self.apply(w, t, out)
+            self.apply(w, sh.far_cap, t, out)
         }
     }
 
@@ -655,7 +680,13 @@ impl Island {
     /// breakpoint where the velocity changed. The first vertex whose new
     /// state is not finite stops it (returned; it and the later ones are
     /// not applied, and the batch's impulses are forgotten).
-    fn apply(&mut self, w: &World, t: Tick, out: &mut SegmentOutput) -> Result<(), u32> {
+    fn apply(
+        &mut self,
+        w: &World,
+        far_cap: &[f64],
+        t: Tick,
+        out: &mut SegmentOutput,
+    ) -> Result<(), u32> {
         let mut result = Ok(());
         for &j in &self.touched {
             let jl = j as usize;
@@ -678,7 +709,14 @@ impl Island {
                     self.moved_list.push(j);
                 }
                 self.dormancy.observe(jl, v_new);
-                out.breakpoints.push((self.vertices[jl], t, x));
+                let i = self.vertices[jl];
+                if let Some(&cap) = far_cap.get(i as usize) {
+                    let speed2 = v_new.length_squared();
+                    if speed2 > cap * cap {
+                        out.fast.push((i, speed2));
+                    }
+                }
+                out.breakpoints.push((i, t, x));
             }
         }
         self.touched.clear();

@@ -14,15 +14,18 @@
 //! runs its own batches ([`island`]), all islands at once on the executor
 //! (over ranks: placed largest first near the owners of their vertices,
 //! each rank handed only what it keeps of their results, in one all-to-all).
+//! The islands run as units ([`units`]: small ones packed); with
+//! `contact.split_islands` the far stencils stay out of them ([`far`]).
 //! Then the internal tick
 //! ([`internal`]) folds the internal forces and, after them, each island's
 //! kicks at that tick. Every vertex folds the same kicks in the same order as
 //! one global schedule of batches would: the same bits.
 
+mod far;
 mod internal;
 mod island;
+mod units;
 
-use std::sync::Mutex;
 use std::time::Instant;
 
 use glam::DVec3;
@@ -35,17 +38,19 @@ use crate::executor::Executor;
 use crate::islands::Islands;
 use crate::trace;
 use crate::world::World;
-use island::{Island, SegmentOutput, Shared};
+use far::{may_be_far, Checked, FarSet};
+use island::{SegmentOutput, Shared};
+use units::{FarCounts, UnitSpec, Units};
 
 /// Tasks per thread that the islands of a segment are dealt to on one
 /// memory (on the twister 50k with 2 threads, the island stage reached 90 %
 /// of its ideal with 2 per thread, 81 % with 8 and 74 % with 32).
-const BINS_PER_THREAD: usize = 2;
+pub(super) const BINS_PER_THREAD: usize = 2;
 
 /// Tasks per rank over ranks: every rank must deal the same tasks
 /// (`map_on_ranks` takes one list), so their number cannot follow a rank's
 /// own thread count there.
-const BINS_PER_RANK: usize = 8;
+pub(super) const BINS_PER_RANK: usize = 8;
 
 /// Islands of fewer stencils are packed together (`Islands::packed`): a
 /// pack runs with the bits of its islands run apart, but each island costs
@@ -65,6 +70,8 @@ pub(super) struct PassCounts {
     pub(super) islands: u64,
     pub(super) largest_island_layer_events: u64,
     pub(super) min_separation: f64,
+    /// What the far stencils did (`far`).
+    pub(super) far: FarCounts,
     /// Wall seconds of the internal-force part of internal ticks (up to
     /// the new velocities).
     pub(super) internal_seconds: f64,
@@ -88,14 +95,11 @@ pub(super) struct Workspace {
     v_new: Vec<DVec3>,
     /// Bounds of the fixed runs of vertices of the per-vertex stages.
     vertex_runs: Vec<usize>,
-    /// The pass's contact islands (each locked by the task that runs it).
-    islands: Vec<Mutex<Island>>,
-    /// Over ranks, the rank each island runs on for the whole pass (what it
-    /// keeps between segments — its anchors and dormancy — stays there).
-    island_rank: Vec<u32>,
-    /// Each island's cost: its stencils at first, then the seconds its last
-    /// segment took; islands are handed out largest first.
-    island_cost: Vec<f64>,
+    /// The units of the pass's penalty stage this rank runs (islands of
+    /// the near stencils, packed; the far stencils beside them).
+    units: Units,
+    /// The pass has no active stencil (on every rank alike).
+    no_islands: bool,
     /// The end of the pass being run.
     pass_end: Tick,
     /// The islands' breakpoints of a segment by vertex run: (vertex in the
@@ -209,7 +213,7 @@ fn tick_at_or_after(t: Tick, p: Tick) -> Tick {
 }
 
 /// The items of the given costs, largest first (ties: the lower index).
-fn largest_first(costs: &[f64]) -> Vec<u32> {
+pub(super) fn largest_first(costs: &[f64]) -> Vec<u32> {
     let mut order: Vec<u32> = (0..costs.len() as u32).collect();
     order.sort_by(|&a, &b| {
         costs[b as usize]
@@ -363,9 +367,10 @@ impl<E: Executor> Engine<E> {
         Ok(counts)
     }
 
-    /// The pass's contact islands, all awake, and the counts that follow from
-    /// the active set alone: the layer events of the window (each stencil of
-    /// depth `d` at every tick of layers `1..=d`) and the largest island's.
+    /// The pass's contact islands, their units (all awake) and far
+    /// stencils, and the counts that follow from the active set alone: the
+    /// layer events of the window (each stencil of depth `d` at every tick
+    /// of layers `1..=d`) and the largest island's.
     fn begin_islands(
         &mut self,
         active: &[(StencilKey, u32)],
@@ -393,17 +398,16 @@ impl<E: Executor> Engine<E> {
         counts.islands = islands.len() as u64;
         counts.layer_events = (0..islands.len()).map(events_of).sum();
         counts.largest_island_layer_events = (0..islands.len()).map(events_of).max().unwrap_or(0);
-        // The units of work: the islands, the small ones packed.
+        // The packs: the islands, the small ones packed; over ranks each
+        // runs on one rank for the whole pass.
         let packs = islands.packed(self.island_pack);
-        let ws = &mut self.ws;
-        ws.pass_end = t1;
-        ws.island_cost = (0..packs.len())
+        let pack_cost: Vec<f64> = (0..packs.len())
             .map(|k| packs.stencils_of(k).len() as f64)
             .collect();
-        ws.island_rank = match &self.share {
+        let pack_rank = match &self.share {
             None => vec![0; packs.len()],
             Some(share) => {
-                // Each unit's home: the rank owning most of its vertices.
+                // Each pack's home: the rank owning most of its vertices.
                 let home: Vec<u32> = (0..packs.len())
                     .map(|k| {
                         let mut votes = vec![0usize; share.ranks];
@@ -415,19 +419,65 @@ impl<E: Executor> Engine<E> {
                             .expect("a rank") as u32
                     })
                     .collect();
-                place_near_home(&ws.island_cost, &home, share.ranks)
+                place_near_home(&pack_cost, &home, share.ranks)
             }
         };
-        // Each rank builds the islands placed on it (they run there for the
-        // whole pass; of the others' results, each segment brings what
-        // this rank keeps).
+        // This rank's packs, split into units: the islands of their near
+        // stencils, packed within each pack, with the far stencils beside.
         let me = self.exec.rank() as u32;
-        ws.islands = (0..packs.len())
-            .map(|k| match ws.island_rank[k] == me {
-                true => Mutex::new(Island::new(&packs, k, active, w, t0)),
-                false => Mutex::default(),
-            })
-            .collect();
+        let mine = |k: u32| pack_rank[k as usize] == me;
+        let split = self.far_stencils && !self.one_island && !self.every_layer_event;
+        let h_el = w.lattice.internal_step();
+        let mut checked = Checked::default();
+        let (specs, far) = if split {
+            let mut pack_of = vec![0u32; active.len()];
+            for k in 0..packs.len() {
+                for &a in packs.stencils_of(k) {
+                    pack_of[a as usize] = k as u32;
+                }
+            }
+            let candidates: Vec<usize> = (0..active.len())
+                .filter(|&a| mine(pack_of[a]) && may_be_far(w, &active[a].0))
+                .collect();
+            let listed: Vec<(StencilKey, u32, u32)> = (candidates.iter())
+                .map(|&a| (active[a].0, active[a].1, pack_of[a]))
+                .collect();
+            let (far, is_far) = FarSet::new(w, &listed, &mine, (t0, t0 + h_el, t1), &mut checked);
+            let mut near = vec![true; active.len()];
+            for (&a, &f) in candidates.iter().zip(&is_far) {
+                near[a] = !f;
+            }
+            let near: Vec<usize> = (0..active.len())
+                .filter(|&a| near[a] && mine(pack_of[a]))
+                .collect();
+            let near_islands = Islands::build(near.iter().map(|&a| &active[a].0), &w.inv_mass);
+            let group = |k: usize| pack_of[near[near_islands.stencils_of(k)[0] as usize]];
+            let units = near_islands.packed_within(group, 1);
+            let specs = (0..units.len())
+                .map(|u| {
+                    let members = (units.stencils_of(u).iter())
+                        .map(|&a| active[near[a as usize]])
+                        .collect();
+                    (units.vertices_of(u).to_vec(), members)
+                })
+                .collect::<Vec<UnitSpec>>();
+            (specs, far)
+        } else {
+            let specs = (0..packs.len())
+                .filter(|&k| mine(k as u32))
+                .map(|k| {
+                    let members = (packs.stencils_of(k).iter())
+                        .map(|&a| active[a as usize])
+                        .collect();
+                    (packs.vertices_of(k).to_vec(), members)
+                })
+                .collect::<Vec<UnitSpec>>();
+            (specs, FarSet::default())
+        };
+        let ws = &mut self.ws;
+        ws.pass_end = t1;
+        ws.no_islands = packs.is_empty();
+        ws.units = Units::new(&self.exec, w, specs, far, checked, t0, through);
         ws.calm = (self.share.is_none() && !packs.is_empty()).then(|| {
             let mut in_island = vec![false; w.num_vertices()];
             for &i in (0..packs.len()).flat_map(|k| packs.vertices_of(k)) {
@@ -454,9 +504,10 @@ impl<E: Executor> Engine<E> {
             }
         });
         if let Some(share) = &self.share {
-            // Every vertex an island's stencils read, with the island's rank.
+            // Every vertex a pack's stencils read (near and far), with the
+            // pack's rank.
             let reads = (0..packs.len()).flat_map(|k| {
-                let r = ws.island_rank[k];
+                let r = pack_rank[k];
                 (packs.stencils_of(k).iter())
                     .flat_map(move |&a| active[a as usize].0.v.map(|i| (i, r)))
             });
@@ -484,8 +535,8 @@ impl<E: Executor> Engine<E> {
         (s, e): (Tick, Tick),
         internal: bool,
     ) -> Result<(Vec<SegmentOutput>, SegmentTotals), SimError> {
-        let n = self.ws.islands.len();
-        if n == 0 {
+        if self.ws.no_islands {
+            // (On every rank alike: no active stencil.)
             return Ok((Vec::new(), SegmentTotals::default()));
         }
         let shared = Shared {
@@ -493,15 +544,9 @@ impl<E: Executor> Engine<E> {
             layer_consts,
             exhaustive: self.every_layer_event,
             pass_end: self.ws.pass_end,
+            far_cap: &[],
         };
-        let ws = &mut self.ws;
-        let outputs = run_bins(
-            &self.exec,
-            &shared,
-            (&ws.islands, &ws.island_rank, &mut ws.island_cost),
-            (s, e),
-            internal,
-        );
+        let outputs = (self.ws.units).segment(&self.exec, &shared, (s, e), internal);
         let totals = SegmentTotals::of(&outputs);
         let (ranks, me) = (self.exec.ranks(), self.exec.rank() as u32);
         if ranks == 1 {
@@ -549,11 +594,10 @@ impl<E: Executor> Engine<E> {
             layer_consts,
             exhaustive: self.every_layer_event,
             pass_end: ws.pass_end,
+            far_cap: &[],
         };
         let Workspace {
-            islands,
-            island_rank,
-            island_cost,
+            units,
             xt,
             out,
             acc,
@@ -568,8 +612,7 @@ impl<E: Executor> Engine<E> {
         let (mut seconds, mut bad) = (0.0, Vec::new());
         exec.join(
             &mut || {
-                let costs = (&islands[..], &island_rank[..], &mut island_cost[..]);
-                outputs = run_bins(exec, &shared, costs, (s, e), true);
+                outputs = units.segment(exec, &shared, (s, e), true);
             },
             &mut || {
                 let clock = Instant::now();
@@ -709,65 +752,16 @@ impl<E: Executor> Engine<E> {
         counts.layer_evaluations += totals.evaluations;
         counts.layer_kicks += totals.kicks;
         counts.min_separation = counts.min_separation.min(totals.min_separation);
+        counts.far.far += totals.far.far;
+        counts.far.promoted += totals.far.promoted;
+        counts.far.reruns += totals.far.reruns;
+        counts.far.largest = counts.far.largest.max(totals.far.largest);
         Ok(totals.blew_up.map(|(t, i)| SimError::NonFinite {
             place: w.place(i),
             vertex: i,
             time: w.lattice.seconds(t),
         }))
     }
-}
-
-/// This rank's islands' segment `[s, e)` (and their kicks at the internal
-/// tick `e` when `internal`), in parallel: dealt into bins largest first
-/// (by the seconds of their last segment, which become the new costs) to
-/// the least-loaded bin, so a few tasks carry the many small islands (a
-/// task per island would cost more than most islands do). Returns their
-/// outputs in island order.
-fn run_bins<E: Executor>(
-    exec: &E,
-    shared: &Shared<'_>,
-    (islands, island_rank, island_cost): (&[Mutex<Island>], &[u32], &mut [f64]),
-    (s, e): (Tick, Tick),
-    internal: bool,
-) -> Vec<SegmentOutput> {
-    let _span = trace::span_with("islands", "islands", islands.len() as u64);
-    let (ranks, me) = (exec.ranks(), exec.rank() as u32);
-    let per_rank = if ranks == 1 {
-        BINS_PER_THREAD * exec.threads_per_rank().max(1)
-    } else {
-        BINS_PER_RANK
-    };
-    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); per_rank];
-    let mut load = vec![0.0f64; per_rank];
-    for k in largest_first(island_cost) {
-        if island_rank[k as usize] != me {
-            continue;
-        }
-        let b = (0..per_rank)
-            .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
-            .expect("a bin");
-        load[b] += island_cost[k as usize].max(1e-9);
-        bins[b].push(k);
-    }
-    let binned = exec.map(bins.len(), &|b| {
-        let _span = trace::span_with("island task", "islands", bins[b].len() as u64);
-        (bins[b].iter())
-            .map(|&k| {
-                let mut island = islands[k as usize].lock().expect("an island's lock");
-                island.run_segment(exec, shared, (s, e), internal)
-            })
-            .collect::<Vec<_>>()
-    });
-    let mut mine: Vec<(u32, SegmentOutput)> = bins
-        .into_iter()
-        .flatten()
-        .zip(binned.into_iter().flatten())
-        .collect();
-    mine.sort_unstable_by_key(|m| m.0);
-    for (k, output) in &mine {
-        island_cost[*k as usize] = output.seconds;
-    }
-    mine.into_iter().map(|m| m.1).collect()
 }
 
 /// What every rank agrees on of a segment's islands: their counts summed,
@@ -780,6 +774,7 @@ pub(super) struct SegmentTotals {
     min_separation: f64,
     blew_up: Option<(Tick, u32)>,
     breakpoints: u64,
+    far: FarCounts,
 }
 
 /// No island: nothing counted, no distance seen.
@@ -791,6 +786,7 @@ impl Default for SegmentTotals {
             min_separation: f64::INFINITY,
             blew_up: None,
             breakpoints: 0,
+            far: FarCounts::default(),
         }
     }
 }
@@ -806,6 +802,7 @@ impl SegmentTotals {
                 min_separation: out.min_separation,
                 blew_up: out.blew_up,
                 breakpoints: out.breakpoints.len() as u64,
+                far: out.far,
             });
         }
         totals
@@ -821,6 +818,10 @@ impl SegmentTotals {
             self.blew_up = Some(self.blew_up.map_or(b, |a| a.min(b)));
         }
         self.breakpoints += other.breakpoints;
+        self.far.far += other.far.far;
+        self.far.promoted += other.far.promoted;
+        self.far.reruns += other.far.reruns;
+        self.far.largest = self.far.largest.max(other.far.largest);
     }
 
     /// As the words of an all-to-all's head (no blow-up: a tick of all
@@ -835,11 +836,16 @@ impl SegmentTotals {
             t,
             i.into(),
             self.breakpoints,
+            self.far.far,
+            self.far.promoted,
+            self.far.reruns,
+            self.far.largest,
         ]
     }
 
     fn from_words(w: &[u64]) -> Option<Self> {
-        let &[evaluations, kicks, min, t, i, breakpoints] = w else {
+        let &[evaluations, kicks, min, t, i, breakpoints, far, promoted, reruns, largest] = w
+        else {
             return None;
         };
         Some(SegmentTotals {
@@ -848,6 +854,12 @@ impl SegmentTotals {
             min_separation: f64::from_bits(min),
             blew_up: (t != Tick::MAX).then_some((t, u32::try_from(i).ok()?)),
             breakpoints,
+            far: FarCounts {
+                far,
+                promoted,
+                reruns,
+                largest,
+            },
         })
     }
 }

@@ -1,0 +1,487 @@
+//! Far stencils: active stencils kept out of the contact islands' union
+//! while they are certified to stay outside `eta_1`.
+//!
+//! Layer prediction activates many stencils that are never reached (on the
+//! 10k twister about 40,000 a window, 98 % of them), and each with two
+//! dynamic vertices joins two islands: the sleeve's contacts fuse into one
+//! island holding 99.7 % of the layer events, which runs on one thread and
+//! one rank. A stencil outside `eta_1` kicks nothing, so it joins nothing
+//! while that is *certified*; the islands are built from the other (near)
+//! stencils, and a far stencil that may come within `eta_1` is **promoted**:
+//! it joins the units its vertices lie in, merged into one.
+//!
+//! A far stencil's certificate is the dormancy's (`island.rs`, `sleep`):
+//! exact at a segment start, it holds until a tick while its vertices move
+//! no faster than their speed caps ([`FarSet`]'s, raised to
+//! [`HEADROOM`] × a speed that breaks them) with fewer than
+//! [`BREAKPOINTS_PER_WAKE`] breakpoints since it was made. Per segment
+//! `[s, e]` (the penalty ticks between two internal ticks and the island
+//! batch at the internal tick `e`):
+//!
+//! 1. **Before** ([`FarSet::before_segment`]): the velocities the internal
+//!    tick gave are shown to the caps (and its breakpoint counted); every
+//!    far stencil whose cap broke, whose certificate ends by `e`, whose
+//!    vertices piled up breakpoints or that passed a check after the last
+//!    segment is certified again from its exact distance at `s`. One that
+//!    cannot be certified through `e` is promoted before the segment runs.
+//! 2. **During**: an island reports every far vertex whose new speed breaks
+//!    its cap (`SegmentOutput::fast`), the caps being fixed for the segment.
+//! 3. **After** ([`FarSet::check`], then [`FarSet::commit`]): each far
+//!    stencil with such a vertex, or with a vertex that piled up
+//!    breakpoints, is checked over `[s, e]` from its exact distance at `s`
+//!    and the largest speeds its vertices reached. One that fails is promoted and the merged unit runs
+//!    the segment again from the state at `s` (the world is written only
+//!    after), until every far stencil left passes.
+//!
+//! Why that gives the global schedule's bits: a far stencil kicks only
+//! inside `eta_1`. Suppose one would, and take the first such kick in time,
+//! at tick `t`. Up to `t` no far stencil kicked, so the islands' run equals
+//! the global schedule there, and the stencil is within `eta_1` at `t` in
+//! that run too. Its certificate then failed at or before `t`: a vertex
+//! broke its cap or piled up breakpoints (seen in step 3 of that segment,
+//! whose check from the exact distance at `s` and the speeds actually
+//! reached is a sound bound and fails, so it is promoted and the segment
+//! rerun with it), or the certificate ran out (seen in step 1). So no far
+//! stencil left out of an island ever kicks, and zero kicks write nothing.
+//!
+//! Every decision reads only the state (positions at `s`, the speeds the
+//! islands reached), never where anything runs: the units, promotions and
+//! reruns — and so the counts of evaluations — are the same on every
+//! executor.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+use glam::DVec3;
+use weft_core::{StencilKey, StencilKind};
+use weft_geom::distance::stencil_closest;
+
+use super::island::{distance_lower_bound, sleep, SegmentOutput};
+use crate::clock::Tick;
+use crate::dormancy::{BREAKPOINTS_PER_WAKE, HEADROOM};
+use crate::executor::Executor;
+use crate::world::World;
+
+/// A far vertex's watchers are certified again after this many of its
+/// breakpoints, so that a certificate never spans more than
+/// [`BREAKPOINTS_PER_WAKE`] (the rounding `sleep` allows for): it was made
+/// after the last renewal, and a segment that adds more than the rest is
+/// checked on its own.
+const RENEW_AFTER_BREAKPOINTS: u32 = BREAKPOINTS_PER_WAKE / 2;
+
+/// Far stencils per task when they are certified again.
+const RENEW_RUN: usize = 128;
+
+/// The far stencils of a pass, their certificates and their vertices'
+/// speed caps.
+#[derive(Debug, Default)]
+pub(super) struct FarSet {
+    /// Per far stencil of the packs this rank runs: its key and depth, its
+    /// pack (the island of the whole active set it lies in), the tick its
+    /// certificate ends (exclusive) and whether it was promoted.
+    key: Vec<StencilKey>,
+    depth: Vec<u32>,
+    pack: Vec<u32>,
+    until: Vec<Tick>,
+    promoted: Vec<bool>,
+    /// Vertex → far stencils (CSR over every vertex).
+    offsets: Vec<u32>,
+    of_vertex: Vec<u32>,
+    /// Per vertex: its speed cap (`+inf` for a vertex of no far stencil of
+    /// this rank, so no island reports it) and its breakpoints since its
+    /// watchers' certificates were last renewed.
+    cap: Vec<f64>,
+    since: Vec<u32>,
+    /// The vertices of this rank's far stencils, ascending.
+    vertices: Vec<u32>,
+    /// Certificate ends `(until, stencil)`; stale entries (promoted, or
+    /// renewed to another tick) are skipped.
+    due: BinaryHeap<Reverse<(Tick, u32)>>,
+    /// Far stencils to certify at the next segment start, and those the
+    /// last check passed.
+    renew: Vec<u32>,
+    passed: Vec<u32>,
+    /// Scratch of [`FarSet::after_segment`]: per vertex, the largest speed²
+    /// an island reached and its breakpoints in the segment.
+    fastest: Vec<f64>,
+    added: Vec<u32>,
+    touched: Vec<u32>,
+    /// The pass's end (certificates reaching it need no renewal).
+    pass_end: Tick,
+}
+
+/// What a far-stencil check evaluated: exact distances, and the smallest.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Checked {
+    pub evaluations: u64,
+    pub min_separation: f64,
+}
+
+impl Default for Checked {
+    fn default() -> Self {
+        Checked {
+            evaluations: 0,
+            min_separation: f64::INFINITY,
+        }
+    }
+}
+
+impl Checked {
+    /// Adds `other`'s evaluations.
+    pub(super) fn add(&mut self, other: &Checked) {
+        self.evaluations += other.evaluations;
+        self.min_separation = self.min_separation.min(other.min_separation);
+    }
+
+    fn saw(&mut self, d: f64) {
+        self.evaluations += 1;
+        self.min_separation = self.min_separation.min(d);
+    }
+}
+
+/// Whether a stencil may be far: it has two dynamic vertices (with one it
+/// joins no two islands, so leaving it out would split nothing).
+pub(super) fn may_be_far(w: &World, key: &StencilKey) -> bool {
+    key.v
+        .iter()
+        .filter(|&&i| w.inv_mass[i as usize] > 0.0)
+        .count()
+        >= 2
+}
+
+/// Position of vertex `i` at tick `t` (the engine's drift).
+#[inline]
+fn pos_at(w: &World, i: u32, t: Tick) -> DVec3 {
+    let i = i as usize;
+    w.x[i] + w.v[i] * ((t - w.tau[i]) as f64 * w.lattice.quantum)
+}
+
+/// The tick up to which (exclusive) a stencil of vertices `v` is certified
+/// outside `eta_1` from tick `t` on while its vertices keep to `caps`
+/// (`None`: not even through `t + 1`), with the exact distance at `t`.
+fn certify(
+    w: &World,
+    kind: StencilKind,
+    v: &[u32; 4],
+    caps: &[f64; 4],
+    t: Tick,
+) -> (Option<Tick>, f64) {
+    let x: [DVec3; 4] = std::array::from_fn(|j| pos_at(w, v[j], t));
+    let d = stencil_closest(kind, &x).d;
+    let lower = distance_lower_bound(kind, d, &x, &x);
+    let (awake_at, room) = sleep(
+        kind,
+        lower,
+        w.schedule.eta_1,
+        &x,
+        caps,
+        w.lattice.quantum,
+        t,
+    );
+    ((room > 0.0 && awake_at > t).then_some(awake_at), d)
+}
+
+/// The speed cap a velocity sets: [`HEADROOM`] × its speed.
+fn cap_of(v: DVec3) -> f64 {
+    HEADROOM * v.length()
+}
+
+impl FarSet {
+    /// Of the `candidates` (active stencils that [`may_be_far`], with their
+    /// depth and pack, in key order), the far ones at the pass start `t0`:
+    /// certified outside `eta_1` through the first internal tick after
+    /// `t0` under caps of [`HEADROOM`] × their vertices' speeds. `mine`
+    /// tells the packs this rank runs; only their stencils are certified
+    /// (the others are returned as not far: this rank builds no unit of
+    /// them).
+    /// Returns the set and, per candidate, whether it is far.
+    pub(super) fn new(
+        w: &World,
+        candidates: &[(StencilKey, u32, u32)],
+        mine: &dyn Fn(u32) -> bool,
+        (t0, first_internal, pass_end): (Tick, Tick, Tick),
+        checked: &mut Checked,
+    ) -> (Self, Vec<bool>) {
+        let n = w.num_vertices();
+        let mut cap = vec![f64::INFINITY; n];
+        for (key, _, pack) in candidates {
+            if mine(*pack) {
+                for &i in &key.v {
+                    cap[i as usize] = cap_of(w.v[i as usize]);
+                }
+            }
+        }
+        let mut set = FarSet {
+            cap,
+            since: vec![0; n],
+            fastest: vec![0.0; n],
+            added: vec![0; n],
+            pass_end,
+            ..Default::default()
+        };
+        let mut is_far = vec![false; candidates.len()];
+        for (c, (key, depth, pack)) in candidates.iter().enumerate() {
+            if !mine(*pack) {
+                continue;
+            }
+            let caps = key.v.map(|i| set.cap[i as usize]);
+            let (until, d) = certify(w, key.kind, &key.v, &caps, t0);
+            checked.saw(d);
+            let Some(until) = until.filter(|&u| u > first_internal) else {
+                continue;
+            };
+            is_far[c] = true;
+            let f = set.key.len() as u32;
+            set.key.push(*key);
+            set.depth.push(*depth);
+            set.pack.push(*pack);
+            set.until.push(until);
+            set.promoted.push(false);
+            if until < pass_end {
+                set.due.push(Reverse((until, f)));
+            }
+        }
+        // The vertex index over the far stencils, and their vertices' caps
+        // (the others' back to +inf: nothing watches them).
+        set.offsets = vec![0; n + 1];
+        for key in &set.key {
+            for &i in &key.v {
+                set.offsets[i as usize + 1] += 1;
+            }
+        }
+        for i in 0..n {
+            set.offsets[i + 1] += set.offsets[i];
+        }
+        set.of_vertex = vec![0; set.offsets[n] as usize];
+        let mut fill = set.offsets.clone();
+        for (f, key) in set.key.iter().enumerate() {
+            for &i in &key.v {
+                set.of_vertex[fill[i as usize] as usize] = f as u32;
+                fill[i as usize] += 1;
+            }
+        }
+        for i in 0..n {
+            if set.offsets[i] == set.offsets[i + 1] {
+                set.cap[i] = f64::INFINITY;
+            } else {
+                set.vertices.push(i as u32);
+            }
+        }
+        (set, is_far)
+    }
+
+    /// How many far stencils the pass started with.
+    pub(super) fn len(&self) -> usize {
+        self.key.len()
+    }
+
+    /// Per vertex, its speed cap (`+inf`: no far stencil watches it): what
+    /// the islands report a breaking speed against.
+    pub(super) fn caps(&self) -> &[f64] {
+        &self.cap
+    }
+
+    /// Far stencil `f`'s key and depth (its layers when promoted) and pack.
+    pub(super) fn stencil(&self, f: u32) -> (StencilKey, u32, u32) {
+        let f = f as usize;
+        (self.key[f], self.depth[f], self.pack[f])
+    }
+
+    /// The far stencils watching vertex `i`.
+    fn watchers(&self, i: usize) -> &[u32] {
+        &self.of_vertex[self.offsets[i] as usize..self.offsets[i + 1] as usize]
+    }
+
+    /// Step 1, at the start `s` of a segment ending at `e`: shows the
+    /// velocities an internal tick gave to the caps, counts its breakpoint,
+    /// and certifies again every far stencil that needs it. Returns those
+    /// that cannot be certified through `e`, ascending (the caller promotes
+    /// them; they are marked promoted here).
+    pub(super) fn before_segment<E: Executor>(
+        &mut self,
+        exec: &E,
+        w: &World,
+        (s, e): (Tick, Tick),
+        after_internal: bool,
+        checked: &mut Checked,
+    ) -> Vec<u32> {
+        if self.key.is_empty() {
+            return Vec::new();
+        }
+        if after_internal {
+            for k in 0..self.vertices.len() {
+                let i = self.vertices[k] as usize;
+                let v = w.v[i];
+                let mut renew = false;
+                if v.length_squared() > self.cap[i] * self.cap[i] {
+                    self.cap[i] = cap_of(v);
+                    renew = true;
+                }
+                // Every internal tick may give the vertex a breakpoint.
+                self.since[i] += 1;
+                if self.since[i] >= RENEW_AFTER_BREAKPOINTS {
+                    renew = true;
+                }
+                if renew {
+                    self.since[i] = 0;
+                    let (a, b) = (self.offsets[i] as usize, self.offsets[i + 1] as usize);
+                    self.renew.extend_from_slice(&self.of_vertex[a..b]);
+                }
+            }
+        }
+        while let Some(&Reverse((until, f))) = self.due.peek() {
+            if until > e {
+                break;
+            }
+            self.due.pop();
+            if self.until[f as usize] == until {
+                self.renew.push(f);
+            }
+        }
+        let mut renew = std::mem::take(&mut self.renew);
+        renew.sort_unstable();
+        renew.dedup();
+        renew.retain(|&f| !self.promoted[f as usize]);
+        // The certificates, on the executor in runs, then applied in order.
+        let this = &*self;
+        let certified = exec.map(renew.len().div_ceil(RENEW_RUN), &|r| {
+            let run = &renew[r * RENEW_RUN..((r + 1) * RENEW_RUN).min(renew.len())];
+            (run.iter())
+                .map(|&f| {
+                    let key = this.key[f as usize];
+                    let caps = key.v.map(|i| this.cap[i as usize]);
+                    certify(w, key.kind, &key.v, &caps, s)
+                })
+                .collect::<Vec<_>>()
+        });
+        let mut promote = Vec::new();
+        for (&f, (until, d)) in renew.iter().zip(certified.into_iter().flatten()) {
+            let fu = f as usize;
+            checked.saw(d);
+            match until.filter(|&u| u > e) {
+                Some(u) => {
+                    let u = if u >= self.pass_end { Tick::MAX } else { u };
+                    self.until[fu] = u;
+                    if u != Tick::MAX {
+                        self.due.push(Reverse((u, f)));
+                    }
+                }
+                None => {
+                    self.promoted[fu] = true;
+                    promote.push(f);
+                }
+            }
+        }
+        renew.clear();
+        self.renew = renew;
+        promote
+    }
+
+    /// Step 3, after the islands ran `[s, e]` from the world's state at `s`
+    /// (not yet written): of the far stencils whose vertices broke their
+    /// caps or piled up breakpoints in `outputs` (every unit's output of
+    /// the segment, reruns included), those that may have come within
+    /// `eta_1` in the segment. Returns them ascending, marked promoted (the
+    /// caller merges them into units and reruns those, then checks again);
+    /// with none, [`FarSet::commit`] ends the segment. Changes nothing else,
+    /// so a check after a rerun sees only the final outputs.
+    pub(super) fn check<'a>(
+        &mut self,
+        w: &World,
+        (s, e): (Tick, Tick),
+        outputs: impl Iterator<Item = &'a SegmentOutput>,
+        checked: &mut Checked,
+    ) -> Vec<u32> {
+        self.clear_scratch();
+        if self.key.is_empty() {
+            return Vec::new();
+        }
+        for out in outputs {
+            for &(i, speed2) in &out.fast {
+                let iu = i as usize;
+                self.touch(i);
+                self.fastest[iu] = self.fastest[iu].max(speed2);
+            }
+            for &(i, _, _) in &out.breakpoints {
+                let iu = i as usize;
+                if self.offsets[iu] != self.offsets[iu + 1] {
+                    self.touch(i);
+                    self.added[iu] += 1;
+                }
+            }
+        }
+        let mut doubtful = Vec::new();
+        for &i in &self.touched {
+            let iu = i as usize;
+            let broke = self.fastest[iu] > self.cap[iu] * self.cap[iu];
+            if broke || self.since[iu] + self.added[iu] >= RENEW_AFTER_BREAKPOINTS {
+                doubtful.extend_from_slice(self.watchers(iu));
+            }
+        }
+        doubtful.sort_unstable();
+        doubtful.dedup();
+        let mut promote = Vec::new();
+        self.passed.clear();
+        for &f in &doubtful {
+            let fu = f as usize;
+            if self.promoted[fu] {
+                continue;
+            }
+            let key = self.key[fu];
+            // The segment's own breakpoints must stay within what the
+            // bound's rounding allows for.
+            let piled = (key.v.iter()).any(|&i| self.added[i as usize] > BREAKPOINTS_PER_WAKE);
+            // Over [s, e] each vertex moved no faster than its cap, or than
+            // the largest speed it reached where that broke the cap.
+            let caps = key.v.map(|i| {
+                let i = i as usize;
+                self.cap[i].max(self.fastest[i].sqrt())
+            });
+            let (until, d) = certify(w, key.kind, &key.v, &caps, s);
+            checked.saw(d);
+            if piled || until.is_none_or(|u| u <= e) {
+                self.promoted[fu] = true;
+                promote.push(f);
+            } else {
+                self.passed.push(f);
+            }
+        }
+        promote
+    }
+
+    /// The end of a segment whose last [`FarSet::check`] promoted nothing:
+    /// the caps its outputs broke are raised, their breakpoints counted,
+    /// and the far stencils that check passed (their premises failed in
+    /// the segment, which they survived) are certified again at the next
+    /// segment start.
+    pub(super) fn commit(&mut self) {
+        for &i in &self.touched {
+            let iu = i as usize;
+            if self.fastest[iu] > self.cap[iu] * self.cap[iu] {
+                self.cap[iu] = HEADROOM * self.fastest[iu].sqrt();
+            }
+            self.since[iu] += self.added[iu];
+            if self.since[iu] >= RENEW_AFTER_BREAKPOINTS {
+                self.since[iu] = 0;
+            }
+        }
+        self.renew.append(&mut self.passed);
+        self.clear_scratch();
+    }
+
+    /// Lists vertex `i` in the check's scratch.
+    fn touch(&mut self, i: u32) {
+        let iu = i as usize;
+        if self.fastest[iu] == 0.0 && self.added[iu] == 0 {
+            self.touched.push(i);
+        }
+    }
+
+    fn clear_scratch(&mut self) {
+        for &i in &self.touched {
+            self.fastest[i as usize] = 0.0;
+            self.added[i as usize] = 0;
+        }
+        self.touched.clear();
+    }
+}

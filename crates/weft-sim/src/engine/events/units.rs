@@ -1,0 +1,405 @@
+//! The units of work of a pass's penalty stage: contact islands of the near
+//! stencils, packed, with the far stencils ([`super::far`]) watched beside
+//! them and promoted into them when they may come within `eta_1`.
+//!
+//! A unit is any union of islands of the stencils it runs (`Islands::packed`:
+//! the same bits as running them apart). The units of a pass are built from
+//! the islands of its near stencils, packed within the islands of the whole
+//! active set (the *packs*, which ranks place), so a promotion merges units
+//! of one pack only, on the rank running it. A promotion merges the units
+//! holding the far stencil's dynamic vertices, the stencil and its vertices
+//! outside every unit into one new unit, built from the world's state at the
+//! segment start (all awake: dormancy skips only zero kicks); if the segment
+//! already ran, the new unit runs it again and its output replaces those of
+//! the units it merged.
+//!
+//! Every choice here (units, promotions, reruns) follows from the state, not
+//! from the executor: the counts of evaluations agree on every one.
+
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+
+use weft_core::{StencilKey, NONE};
+
+use super::far::{Checked, FarSet};
+use super::island::{Island, SegmentOutput, Shared};
+use super::{BINS_PER_RANK, BINS_PER_THREAD};
+use crate::clock::Tick;
+use crate::executor::Executor;
+use crate::trace;
+use crate::world::World;
+
+/// What the far stencils did in a pass, summed over segments and ranks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct FarCounts {
+    /// Far stencils when the pass started.
+    pub far: u64,
+    /// Far stencils promoted into the units.
+    pub promoted: u64,
+    /// Units that ran a segment again after a promotion.
+    pub reruns: u64,
+    /// The layer events of the pass of the largest unit at its end (the
+    /// largest over ranks).
+    pub largest: u64,
+}
+
+/// The units this rank runs in a pass.
+#[derive(Debug, Default)]
+pub(super) struct Units {
+    /// Each unit, locked by the task that runs it (an emptied one, merged
+    /// into another, stays as an empty island that never runs).
+    islands: Vec<Mutex<Island>>,
+    /// Whether a unit still runs (not merged into another).
+    live: Vec<bool>,
+    /// Each unit's cost: its stencils at first, then the seconds its last
+    /// segment took; units are dealt largest first.
+    cost: Vec<f64>,
+    /// Per vertex: the unit holding it (`NONE`: none).
+    unit_of_vertex: Vec<u32>,
+    far: FarSet,
+    /// The last segment ended with an internal tick.
+    after_internal: bool,
+    /// To report with the next segment: the pass-start far count and
+    /// certificate evaluations.
+    pending: (FarCounts, Checked),
+    /// Per depth `d`: the layer events of a stencil of depth `d` in the
+    /// pass.
+    events_at_depth: Vec<u64>,
+}
+
+/// A unit to build: its dynamic vertices (ascending) and its stencils
+/// (key, depth; in key order).
+pub(super) type UnitSpec = (Vec<u32>, Vec<(StencilKey, u32)>);
+
+impl Units {
+    /// The units `specs`, built from the world's state at the pass start
+    /// `t0` (on the executor), and the far stencils watched beside them
+    /// (`checked`: what choosing them evaluated).
+    pub(super) fn new<E: Executor>(
+        exec: &E,
+        w: &World,
+        specs: Vec<UnitSpec>,
+        far: FarSet,
+        checked: Checked,
+        t0: Tick,
+        events_at_depth: Vec<u64>,
+    ) -> Self {
+        let mut unit_of_vertex = vec![NONE; w.num_vertices()];
+        for (u, (vertices, _)) in specs.iter().enumerate() {
+            for &i in vertices {
+                unit_of_vertex[i as usize] = u as u32;
+            }
+        }
+        let cost = specs.iter().map(|s| s.1.len() as f64).collect();
+        let specs: Vec<Mutex<Option<UnitSpec>>> =
+            specs.into_iter().map(|s| Mutex::new(Some(s))).collect();
+        let islands = exec.map(specs.len(), &|u| {
+            let (vertices, members) =
+                (specs[u].lock().expect("a spec").take()).expect("built once");
+            Mutex::new(Island::of(vertices, members, w, t0))
+        });
+        let pending = (
+            FarCounts {
+                far: far.len() as u64,
+                ..Default::default()
+            },
+            checked,
+        );
+        Units {
+            live: vec![true; islands.len()],
+            islands,
+            cost,
+            unit_of_vertex,
+            far,
+            after_internal: false,
+            pending,
+            events_at_depth,
+        }
+    }
+
+    /// Every unit's segment `[s, e)` (and its kicks at the internal tick `e`
+    /// when `internal`), in parallel, with the far stencils' steps around
+    /// it: certified again before, checked after, promoted and the segment
+    /// run again where a check fails. Returns the units' outputs in unit
+    /// order, then one output holding the far stencils' evaluations and
+    /// counts.
+    pub(super) fn segment<E: Executor>(
+        &mut self,
+        exec: &E,
+        base: &Shared<'_>,
+        (s, e): (Tick, Tick),
+        internal: bool,
+    ) -> Vec<SegmentOutput> {
+        let w = base.world;
+        let (mut counts, mut checked) = std::mem::take(&mut self.pending);
+        let before = trace::span("far before");
+        let promote = (self.far).before_segment(exec, w, (s, e), self.after_internal, &mut checked);
+        drop(before);
+        if !promote.is_empty() {
+            let _span = trace::span("far promote");
+            counts.promoted += promote.len() as u64;
+            self.promote(&promote, w, s);
+        }
+        let mut outputs = {
+            let sh = with_caps(base, &self.far);
+            run_bins(
+                exec,
+                &sh,
+                (&self.islands, &self.live, &mut self.cost),
+                (s, e),
+                internal,
+            )
+        };
+        let _after = trace::span("far after");
+        loop {
+            // (Only the last check's evaluations count: a check after a
+            // rerun checks again the stencils of every unit here, which
+            // depends on what runs here.)
+            let mut last = Checked::default();
+            let promote = (self.far).check(w, (s, e), outputs.iter().map(|o| &o.1), &mut last);
+            if promote.is_empty() {
+                checked.add(&last);
+                break;
+            }
+            counts.promoted += promote.len() as u64;
+            let (changed, emptied) = self.promote(&promote, w, s);
+            let _span = trace::span_with("island rerun", "units", changed.len() as u64);
+            counts.reruns += changed.len() as u64;
+            let sh = with_caps(base, &self.far);
+            let islands = &self.islands;
+            let rerun = exec.map(changed.len(), &|k| {
+                let mut island = islands[changed[k] as usize].lock().expect("a unit's lock");
+                island.run_segment(exec, &sh, (s, e), internal)
+            });
+            outputs.retain(|(u, _)| !changed.contains(u) && !emptied.contains(u));
+            for (&u, out) in changed.iter().zip(rerun) {
+                if let Some(out) = out {
+                    self.cost[u as usize] += out.seconds;
+                    outputs.push((u, out));
+                }
+            }
+        }
+        self.far.commit();
+        if !internal {
+            // The pass's last segment: its largest unit.
+            let events = |u: usize| -> u64 {
+                let island = self.islands[u].lock().expect("a unit");
+                island
+                    .members()
+                    .map(|m| self.events_at_depth[m.1 as usize])
+                    .sum()
+            };
+            counts.largest = (0..self.islands.len())
+                .filter(|&u| self.live[u])
+                .map(events)
+                .max()
+                .unwrap_or(0);
+        }
+        self.after_internal = internal;
+        outputs.sort_unstable_by_key(|o| o.0);
+        let mut outputs: Vec<SegmentOutput> = outputs.into_iter().map(|o| o.1).collect();
+        outputs.push(SegmentOutput {
+            evaluations: checked.evaluations,
+            min_separation: checked.min_separation,
+            far: counts,
+            ..Default::default()
+        });
+        outputs
+    }
+
+    /// Promotes the far stencils `fs` at tick `s` (the world holds the
+    /// state at `s`): each joins the units holding its dynamic vertices and
+    /// its vertices outside every unit; stencils that share a unit or a
+    /// vertex join the same new unit. Returns the new units (each in the
+    /// slot of the lowest unit it merged, or a new slot) and the units
+    /// emptied into them.
+    fn promote(&mut self, fs: &[u32], w: &World, s: Tick) -> (Vec<u32>, Vec<u32>) {
+        // What each stencil joins: units (`u`) and loose vertices
+        // (`1 << 32 | i`), grouped by union over the stencils.
+        #[derive(Default)]
+        struct Group {
+            joins: Vec<u64>,
+            stencils: Vec<u32>,
+        }
+        let mut group_of: BTreeMap<u64, usize> = BTreeMap::new();
+        let mut groups: Vec<Option<Group>> = Vec::new();
+        for &f in fs {
+            let (key, _, _) = self.far.stencil(f);
+            let mut joins: Vec<u64> = (key.v.iter())
+                .filter(|&&i| w.inv_mass[i as usize] > 0.0)
+                .map(|&i| match self.unit_of_vertex[i as usize] {
+                    NONE => 1 << 32 | i as u64,
+                    u => u as u64,
+                })
+                .collect();
+            joins.sort_unstable();
+            joins.dedup();
+            let mut found: Vec<usize> = joins
+                .iter()
+                .filter_map(|j| group_of.get(j).copied())
+                .collect();
+            found.sort_unstable();
+            found.dedup();
+            let g = match found.first() {
+                Some(&g) => g,
+                None => {
+                    groups.push(Some(Group::default()));
+                    groups.len() - 1
+                }
+            };
+            for &other in &found[found.len().min(1)..] {
+                let moved = groups[other].take().expect("a live group");
+                for &j in &moved.joins {
+                    group_of.insert(j, g);
+                }
+                let target = groups[g].as_mut().expect("a live group");
+                target.joins.extend(moved.joins);
+                target.stencils.extend(moved.stencils);
+            }
+            let target = groups[g].as_mut().expect("a live group");
+            for j in joins {
+                if group_of.insert(j, g).is_none() {
+                    target.joins.push(j);
+                }
+            }
+            target.stencils.push(f);
+        }
+        let (mut changed, mut emptied) = (Vec::new(), Vec::new());
+        for group in groups.into_iter().flatten() {
+            let mut units: Vec<u32> = (group.joins.iter())
+                .filter(|&&j| j >> 32 == 0)
+                .map(|&j| j as u32)
+                .collect();
+            units.sort_unstable();
+            let mut vertices: Vec<u32> = (group.joins.iter())
+                .filter(|&&j| j >> 32 == 1)
+                .map(|&j| j as u32)
+                .collect();
+            let mut members: Vec<(StencilKey, u32)> = (group.stencils.iter())
+                .map(|&f| {
+                    let (key, depth, _) = self.far.stencil(f);
+                    (key, depth)
+                })
+                .collect();
+            let mut cost = 0.0;
+            for &u in &units {
+                let island = std::mem::take(&mut *self.islands[u as usize].lock().expect("a unit"));
+                vertices.extend_from_slice(island.vertices());
+                members.extend(island.members());
+                cost += self.cost[u as usize];
+            }
+            vertices.sort_unstable();
+            vertices.dedup();
+            members.sort_unstable_by_key(|m| m.0);
+            let slot = match units.first() {
+                Some(&u) => u,
+                None => {
+                    self.islands.push(Mutex::default());
+                    self.live.push(true);
+                    self.cost.push(0.0);
+                    (self.islands.len() - 1) as u32
+                }
+            };
+            for &u in units.iter().skip(1) {
+                self.live[u as usize] = false;
+                self.cost[u as usize] = 0.0;
+                emptied.push(u);
+            }
+            for &i in &vertices {
+                self.unit_of_vertex[i as usize] = slot;
+            }
+            self.cost[slot as usize] = cost + members.len() as f64 * 1e-9;
+            *self.islands[slot as usize].lock().expect("a unit") =
+                Island::of(vertices, members, w, s);
+            changed.push(slot);
+        }
+        changed.sort_unstable();
+        emptied.sort_unstable();
+        (changed, emptied)
+    }
+}
+
+/// The cost of a unit whose last segment was idle.
+const IDLE_SECONDS: f64 = 1e-7;
+
+/// What the units read: `base` with the far stencils' speed caps.
+fn with_caps<'a>(base: &Shared<'a>, far: &'a FarSet) -> Shared<'a> {
+    Shared {
+        world: base.world,
+        layer_consts: base.layer_consts,
+        exhaustive: base.exhaustive,
+        pass_end: base.pass_end,
+        far_cap: far.caps(),
+    }
+}
+
+/// The live units' segment `[s, e)` (and their kicks at the internal tick
+/// `e` when `internal`), in parallel: dealt into bins largest first (by the
+/// seconds of their last segment, which become the new costs) to the
+/// least-loaded bin, so a few tasks carry the many small units (a task per
+/// unit would cost more than most units do). Returns `(unit, output)` in
+/// unit order, for the units that read a stencil (an idle unit, nothing
+/// awake or due, reports nothing and costs next to nothing next time).
+fn run_bins<E: Executor>(
+    exec: &E,
+    shared: &Shared<'_>,
+    (islands, live, cost): (&[Mutex<Island>], &[bool], &mut [f64]),
+    (s, e): (Tick, Tick),
+    internal: bool,
+) -> Vec<(u32, SegmentOutput)> {
+    let _span = trace::span_with("islands", "islands", islands.len() as u64);
+    let per_rank = if exec.ranks() == 1 {
+        BINS_PER_THREAD * exec.threads_per_rank().max(1)
+    } else {
+        BINS_PER_RANK
+    };
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); per_rank];
+    let mut load = vec![0.0f64; per_rank];
+    // The units that worked last segment, largest first, then the idle
+    // ones in turn (sorting thousands of idle units at every segment cost
+    // more than their checks).
+    let (mut busy, mut idle) = (Vec::new(), Vec::new());
+    for k in 0..cost.len() {
+        match (live[k], cost[k] > IDLE_SECONDS) {
+            (false, _) => {}
+            (true, true) => busy.push(k as u32),
+            (true, false) => idle.push(k as u32),
+        }
+    }
+    busy.sort_by(|&a, &b| {
+        cost[b as usize]
+            .total_cmp(&cost[a as usize])
+            .then(a.cmp(&b))
+    });
+    for k in busy {
+        let b = (0..per_rank)
+            .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
+            .expect("a bin");
+        load[b] += cost[k as usize];
+        bins[b].push(k);
+    }
+    for (n, k) in idle.into_iter().enumerate() {
+        bins[n % per_rank].push(k);
+    }
+    let binned = exec.map(bins.len(), &|b| {
+        let _span = trace::span_with("island task", "islands", bins[b].len() as u64);
+        (bins[b].iter())
+            .map(|&k| {
+                let mut island = islands[k as usize].lock().expect("an island's lock");
+                (k, island.run_segment(exec, shared, (s, e), internal))
+            })
+            .collect::<Vec<_>>()
+    });
+    let mut mine = Vec::new();
+    for (k, output) in binned.into_iter().flatten() {
+        match output {
+            Some(output) => {
+                cost[k as usize] = output.seconds;
+                mine.push((k, output));
+            }
+            None => cost[k as usize] = IDLE_SECONDS,
+        }
+    }
+    mine.sort_unstable_by_key(|m| m.0);
+    mine
+}
