@@ -55,8 +55,12 @@ impl Executor for Threads {
             return weft_sim::Serial.for_each_chunk(data, bounds, task);
         }
         let chunks = weft_sim::executor::split_chunks(data, bounds);
+        // Every chunk its own task (`with_max_len(1)`): rayon otherwise
+        // splits a loop into about as many pieces as threads and runs each
+        // piece in order unless it is stolen, so a thread that comes free
+        // late (a join's other side done) found nothing left to take.
         self.pool.install(|| {
-            chunks.into_par_iter().for_each(|(k, chunk)| task(k, chunk));
+            (chunks.into_par_iter().with_max_len(1)).for_each(|(k, chunk)| task(k, chunk));
         });
     }
 
@@ -64,9 +68,10 @@ impl Executor for Threads {
         if n <= 1 {
             return (0..n).map(f).collect();
         }
-        // `collect` on an indexed parallel iterator keeps index order.
+        // `collect` on an indexed parallel iterator keeps index order; each
+        // item its own task, as above.
         self.pool
-            .install(|| (0..n).into_par_iter().map(f).collect())
+            .install(|| (0..n).into_par_iter().with_max_len(1).map(f).collect())
     }
 
     fn name(&self) -> String {

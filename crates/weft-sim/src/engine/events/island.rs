@@ -144,6 +144,11 @@ pub(super) struct Shared<'a> {
     pub exhaustive: bool,
     /// The end of the pass: the islands and their dormancy end there.
     pub pass_end: Tick,
+    /// Split a batch of at least [`PARALLEL_MIN_STENCILS`] stencils over
+    /// the executor's threads (off while the calm part of the internal tick
+    /// runs beside the islands: it keeps the other threads busy, and a
+    /// giant island's batches handed to them only delayed it).
+    pub split_batches: bool,
     /// Per vertex, the far stencils' speed cap (`super::far`; empty: no
     /// far stencil): a new speed above it is reported in
     /// [`SegmentOutput::fast`].
@@ -532,7 +537,7 @@ impl Island {
             }
         };
         let list = &self.scan;
-        if list.len() >= PARALLEL_MIN_STENCILS {
+        if sh.split_batches && list.len() >= PARALLEL_MIN_STENCILS {
             // A big batch (a giant island): its scan on the executor's
             // threads, in runs (Algorithm 4's node-level sharing).
             let _span = trace::span_with("penalty closest", "stencils", list.len() as u64);
@@ -603,7 +608,7 @@ impl Island {
             penalty_kick(eta_l, k_l, w.lattice.seconds(step), c, &v, &inv, m.mu)
         };
         let items = &self.kick_items;
-        if items.len() >= PARALLEL_MIN_STENCILS {
+        if sh.split_batches && items.len() >= PARALLEL_MIN_STENCILS {
             let _span = trace::span_with("penalty kicks", "stencils", items.len() as u64);
             let parts = exec.map(items.len().div_ceil(PENALTY_RUN), &|r| {
                 let run = &items[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(items.len())];

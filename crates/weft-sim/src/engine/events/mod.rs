@@ -544,6 +544,7 @@ impl<E: Executor> Engine<E> {
             layer_consts,
             exhaustive: self.every_layer_event,
             pass_end: self.ws.pass_end,
+            split_batches: true,
             far_cap: &[],
         };
         let outputs = (self.ws.units).segment(&self.exec, &shared, (s, e), internal);
@@ -594,6 +595,7 @@ impl<E: Executor> Engine<E> {
             layer_consts,
             exhaustive: self.every_layer_event,
             pass_end: ws.pass_end,
+            split_batches: false,
             far_cap: &[],
         };
         let Workspace {
@@ -610,6 +612,7 @@ impl<E: Executor> Engine<E> {
         let calm = calm.as_ref().expect("a calm part");
         let mut outputs = Vec::new();
         let (mut seconds, mut bad) = (0.0, Vec::new());
+        let _join = trace::span("islands and calm");
         exec.join(
             &mut || {
                 outputs = units.segment(exec, &shared, (s, e), true);

@@ -329,6 +329,7 @@ fn with_caps<'a>(base: &Shared<'a>, far: &'a FarSet) -> Shared<'a> {
         layer_consts: base.layer_consts,
         exhaustive: base.exhaustive,
         pass_end: base.pass_end,
+        split_batches: base.split_batches,
         far_cap: far.caps(),
     }
 }
