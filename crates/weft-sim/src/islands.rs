@@ -173,16 +173,6 @@ impl Islands {
     /// order), but costs one task and one pass over its state instead of
     /// one per tiny island.
     pub fn packed(&self, min_stencils: usize) -> Islands {
-        self.packed_within(|_| 0, min_stencils)
-    }
-
-    /// As [`Islands::packed`], but an island is packed only with islands of
-    /// its own `group` (packs come group by group, ascending, each group's
-    /// in island order): the units of one pack of the whole active set,
-    /// which runs on one rank.
-    pub fn packed_within(&self, group: impl Fn(usize) -> u32, min_stencils: usize) -> Islands {
-        let mut order: Vec<(u32, usize)> = (0..self.len()).map(|k| (group(k), k)).collect();
-        order.sort_unstable();
         let mut packs = Islands {
             stencil_start: vec![0],
             vertex_start: vec![0],
@@ -200,11 +190,7 @@ impl Islands {
             packs.stencil_start.push(packs.stencils.len() as u32);
             packs.vertex_start.push(packs.vertices.len() as u32);
         };
-        let mut open_group = None;
-        for (g, k) in order {
-            if open_group.replace(g).is_some_and(|open| open != g) {
-                close(&mut packs, &mut open_stencils, &mut open_vertices);
-            }
+        for k in 0..self.len() {
             let (stencils, vertices) = (self.stencils_of(k), self.vertices_of(k));
             if stencils.len() >= min_stencils {
                 close(&mut packs, &mut stencils.to_vec(), &mut vertices.to_vec());

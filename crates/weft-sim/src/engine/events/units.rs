@@ -1,12 +1,15 @@
-//! The units of work of a pass's penalty stage: contact islands of the near
-//! stencils, packed, with the far stencils ([`super::far`]) watched beside
-//! them and promoted into them when they may come within `eta_1`.
+//! The units of work of a pass's penalty stage: the contact islands a rank
+//! runs, and with `contact.split_islands` the far stencils
+//! ([`super::far`]) watched beside them and promoted into them when they may
+//! come within `eta_1`.
 //!
-//! A unit is any union of islands of the stencils it runs (`Islands::packed`:
-//! the same bits as running them apart). The units of a pass are built from
-//! the islands of its near stencils, packed within the islands of the whole
-//! active set (the *packs*, which ranks place), so a promotion merges units
-//! of one pack only, on the rank running it. A promotion merges the units
+//! A unit is any union of islands of the stencils it runs (the same bits as
+//! running them apart). Without the split the units are the islands of the
+//! whole active set, the small ones packed (`Islands::packed`); over ranks
+//! each runs on one rank for the pass. With it, each island of the near
+//! stencils of this rank's packs is a unit of its own (packed, a promotion
+//! would merge every island of the units it touches), so a promotion merges
+//! units of one pack, on the rank running it. A promotion merges the units
 //! holding the far stencil's dynamic vertices, the stencil and its vertices
 //! outside every unit into one new unit, built from the world's state at the
 //! segment start (all awake: dormancy skips only zero kicks); if the segment
