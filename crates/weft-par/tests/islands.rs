@@ -13,7 +13,8 @@ use weft_par::Threads;
 use weft_sim::kinematics::Motion;
 use weft_sim::materials::Material;
 use weft_sim::{
-    ContactConfig, Engine, LimitsConfig, ObjectKind, ObjectSpec, Serial, TimeConfig, WorldSpec,
+    ContactConfig, Engine, Executor, LimitsConfig, ObjectKind, ObjectSpec, Serial, TimeConfig,
+    World, WorldSpec,
 };
 use weft_testkit::Rng;
 
@@ -71,6 +72,22 @@ fn scene(rng: &mut Rng, case: usize) -> WorldSpec {
     }
 }
 
+/// The world run as one island on `Serial` (one batch per tick over every
+/// stencil: the global schedule), and on `exec`.
+fn global_and<E: Executor>(world: World, exec: E) -> (Engine<Serial>, Engine<E>) {
+    let mut global = Engine::new(world.clone(), Serial).unwrap();
+    global.run_as_one_island(true);
+    (global, Engine::new(world, exec).unwrap())
+}
+
+/// The two engines hold the same positions, velocities, clocks and layers.
+fn assert_same_state<A: Executor, B: Executor>(a: &Engine<A>, b: &Engine<B>, what: &str) {
+    assert_eq!(a.world.x, b.world.x, "{what}: positions");
+    assert_eq!(a.world.v, b.world.v, "{what}: velocities");
+    assert_eq!(a.world.tau, b.world.tau, "{what}: clocks");
+    assert_eq!(a.world.layers, b.world.layers, "{what}: layers");
+}
+
 #[test]
 fn islands_on_threads_give_the_bits_of_the_global_schedule() {
     let mut rng = Rng(0x1514);
@@ -78,19 +95,14 @@ fn islands_on_threads_give_the_bits_of_the_global_schedule() {
     for case in 0..4 {
         let spec = scene(&mut rng, case);
         let world = weft_par::build_world(&spec).unwrap();
-        let mut global = Engine::new(world.clone(), Serial).unwrap();
-        global.run_as_one_island(true);
-        let mut islands = Engine::new(world, Threads::new(2).unwrap()).unwrap();
+        let (mut global, mut islands) = global_and(world, Threads::new(2).unwrap());
         // Every island alone, or the small ones packed in threes.
         islands.set_island_packing([1, 3][case % 2]);
         for w in 0..30 {
             let a = global.step_window().unwrap();
             let b = islands.step_window().unwrap();
             let what = format!("case {case}, window {w}");
-            assert_eq!(global.world.x, islands.world.x, "{what}: positions");
-            assert_eq!(global.world.v, islands.world.v, "{what}: velocities");
-            assert_eq!(global.world.tau, islands.world.tau, "{what}: clocks");
-            assert_eq!(global.world.layers, islands.world.layers, "{what}: layers");
+            assert_same_state(&global, &islands, &what);
             let counts = |s: &weft_sim::WindowStats| {
                 (
                     s.layer_events,
@@ -128,18 +140,13 @@ fn far_stencils_split_the_islands_with_the_bits_of_the_global_schedule() {
     for case in 0..4 {
         let spec = scene(&mut rng, case);
         let world = weft_par::build_world(&spec).unwrap();
-        let mut global = Engine::new(world.clone(), Serial).unwrap();
-        global.run_as_one_island(true);
-        let mut split = Engine::new(world, Threads::new(2).unwrap()).unwrap();
+        let (mut global, mut split) = global_and(world, Threads::new(2).unwrap());
         split.split_far_stencils(true);
         for w in 0..30 {
             global.step_window().unwrap();
             let b = split.step_window().unwrap();
             let what = format!("case {case}, window {w}");
-            assert_eq!(global.world.x, split.world.x, "{what}: positions");
-            assert_eq!(global.world.v, split.world.v, "{what}: velocities");
-            assert_eq!(global.world.tau, split.world.tau, "{what}: clocks");
-            assert_eq!(global.world.layers, split.world.layers, "{what}: layers");
+            assert_same_state(&global, &split, &what);
             far += b.far_stencils;
             promoted += b.far_promoted;
         }
@@ -211,16 +218,13 @@ fn a_cloth_launched_within_a_segment_promotes_its_far_stencils() {
     let mut reruns = 0;
     for (speed, gap) in [(2.0, 5e-5), (4.0, 1e-4), (8.0, 2e-4)] {
         let world = weft_par::build_world(&paddle(speed, gap)).unwrap();
-        let mut global = Engine::new(world.clone(), Serial).unwrap();
-        global.run_as_one_island(true);
-        let mut split = Engine::new(world, Serial).unwrap();
+        let (mut global, mut split) = global_and(world, Serial);
         split.split_far_stencils(true);
         for w in 0..20 {
             let a = global.step_window().unwrap();
             let b = split.step_window().unwrap();
             let what = format!("paddle at {speed} m/s, gap {gap}, window {w}");
-            assert_eq!(global.world.x, split.world.x, "{what}: positions");
-            assert_eq!(global.world.v, split.world.v, "{what}: velocities");
+            assert_same_state(&global, &split, &what);
             assert_eq!(a.rollbacks, b.rollbacks, "{what}: rollbacks");
             reruns += b.island_reruns;
         }
