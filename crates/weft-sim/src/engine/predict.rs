@@ -36,9 +36,10 @@
 //!
 //! **Active stencils** (deeper layers). Their layers push back, so the
 //! extrapolated motion is no guide (it deepened `crumple`'s stencils by
-//! 5 layers a window, to depth 60); they get more layers when their closing
-//! kinetic energy exceeds what their active layers store on the way to the
-//! next one ([`closes_through_barrier`]).
+//! 5 layers a window, to depth 60); they get more layers when they rest
+//! inside their layers within [`RESTING_MARGIN`] of the next one, or when
+//! their closing kinetic energy exceeds what their active layers store on
+//! the way to it ([`reaches_next_layer`]).
 //!
 //! **How many layers.** A predicted or detected stencil gets at least
 //! `layers_per_detection` layers, and as many more as its closing kinetic
@@ -53,8 +54,7 @@
 //! layer deeper, and fast impacts that took 5 layers per rollback, up to
 //! four rollbacks a window. The margin and the energy count took its
 //! rollbacks from 73 to 52, and the 10k twister's from 2 in 3 windows to
-//! none; the resting contacts are left to the detection
-//! ([`closes_through_barrier`] says why).
+//! none; the resting margin took `crumple`'s on to 35.
 //!
 //! Predicted layers retire like any other, after `retire_after_windows` calm
 //! windows. Measured on the 10k twister from its checkpoint: every stencil a
@@ -125,26 +125,34 @@ fn clamp_length(a: DVec3, max: f64) -> DVec3 {
     }
 }
 
+/// An active stencil resting inside its layers (`d < eta_1`) within this
+/// factor of its first inactive layer, `d < RESTING_MARGIN eta_next`, gets
+/// more layers before the window. Measured on `crumple`, where the heap
+/// presses its resting contacts deeper as it grows (every rollback's
+/// stencils logged, build `5c811ef`): 40 of its 52 rollbacks reported such
+/// stencils, 70 % of them within 1.05 `eta_next`. Rollbacks by margin: 1.02
+/// → 48, 1.05 → 45, **1.1 → 35**, 1.2 → 33, 1.4 → 32. Since the layers
+/// crowd together at depth (`eta_(l+1) / eta_l ≈ 1 - 1/(4l)`), a wider
+/// margin hands a deep stencil many layers it never reaches: at 1.2 the
+/// bundled twister's first second took 1.23× the time (its sleeve gripping
+/// the rod went from depth 7 to 12), at 1.1 the same time.
+const RESTING_MARGIN: f64 = 1.1;
+
 /// Whether an active stencil (depth ≥ 1) may reach its first inactive
-/// layer: its closing kinetic energy exceeds the energy its active layers
-/// store between its distance now and `eta_next`. The extrapolated motion
-/// is no guide here, since the active layers push back; measured on
+/// layer `eta_next`: it rests inside its layers within [`RESTING_MARGIN`]
+/// of it, or its closing kinetic energy exceeds the energy its active
+/// layers store between its distance now and `eta_next`. The extrapolated
+/// motion is no guide here, since the active layers push back; measured on
 /// `crumple`, extrapolating through them deepened stencils without end.
-///
-/// A resting contact inside its deepest layer, pressed a layer deeper by
-/// the next fluctuation, is not foreseen. Giving every such stencil more
-/// layers took `crumple`'s rollbacks from 69 to 48 (with a margin of 2),
-/// but made the bundled twister's first second 1.26× slower: a stencil
-/// resting just outside its next layer has no room for a sleep
-/// certificate, so that layer's frequent batches read it again and again.
 ///
 /// Along the normal, with `d' = Σ_j c_j n·v_j` and the effective mass
 /// `m = 1 / Σ_j c_j² w_j` (dynamic vertices only):
 ///
 /// ```text
+/// d < eta_1  and  d < RESTING_MARGIN eta_next,   or
 /// m min(0, d')² / 2  >  Σ_l≤depth V_l(eta_next) - V_l(d)
 /// ```
-fn closes_through_barrier(
+fn reaches_next_layer(
     w: &crate::world::World,
     key: &StencilKey,
     depth: u32,
@@ -152,7 +160,7 @@ fn closes_through_barrier(
 ) -> bool {
     let x = key.v.map(|i| w.x[i as usize]);
     let c = stencil_closest(key.kind, &x);
-    if !(c.d > eta_next) {
+    if !(c.d > eta_next) || (c.d < w.schedule.eta_1 && c.d < RESTING_MARGIN * eta_next) {
         return true;
     }
     let (mut rate, mut m_inv) = (0.0, 0.0);
@@ -172,7 +180,7 @@ fn closes_through_barrier(
 
 /// How many layers a stencil of depth `depth` gets when it is predicted or
 /// detected: at least `min` (`layers_per_detection`), and as many more as
-/// its closing kinetic energy needs, as in [`closes_through_barrier`]: the
+/// its closing kinetic energy needs, as in [`reaches_next_layer`]: the
 /// smallest `D - depth` with
 ///
 /// ```text
@@ -348,7 +356,7 @@ impl<E: Executor> Engine<E> {
                 return false;
             }
             if depth > 0 {
-                return closes_through_barrier(w, key, depth, eta_next);
+                return reaches_next_layer(w, key, depth, eta_next);
             }
             (1..=HORIZON_HALF_WINDOWS).any(|k| {
                 let x = key.v.map(|i| ahead(i as usize, k));
