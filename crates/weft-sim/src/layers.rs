@@ -84,9 +84,19 @@ impl LayerSchedule {
         }
     }
 
-    /// Energy of layers `1..=depth` at distance `d`.
+    /// Energy of layers `1..=depth` at distance `d`. `eta_l` falls with `l`,
+    /// so the sum stops at the first layer `d` is outside: the same value
+    /// as summing every layer (the rest add zeros), without their `pow`s.
     pub fn energy_through(&self, depth: u32, d: f64) -> f64 {
-        (1..=depth).map(|l| self.energy(l, d)).sum()
+        let mut sum = 0.0;
+        for l in 1..=depth {
+            let gap = self.eta(l) - d;
+            if !(gap > 0.0) {
+                break;
+            }
+            sum += 0.5 * self.k(l) * gap * gap;
+        }
+        sum
     }
 }
 

@@ -333,10 +333,6 @@ impl Trajectories {
         self.staged.times.clear();
         self.staged.stored.clear();
         self.staged.stored.resize(n, 0);
-        if self.staged.points.len() != STAGED_TICKS || self.staged.points[0].len() != n {
-            self.staged.points = vec![vec![DVec3::ZERO; n]; STAGED_TICKS];
-            self.staged.marked = vec![vec![false; n]; STAGED_TICKS];
-        }
         for (i, &p) in x.iter().enumerate() {
             self.last[i] = 0.0;
             self.count[i] = 1;
@@ -395,11 +391,25 @@ impl Trajectories {
     /// [`TrajectoryRun::prepare`] first; report what they added with
     /// [`Trajectories::add_recorded`].
     pub fn runs(&mut self, bounds: &[usize], t: Option<Tick>) -> Vec<TrajectoryRun<'_>> {
+        self.make_staged_columns();
         let flush = match t {
             Some(_) => self.staged.times.len() == STAGED_TICKS,
             None => !self.staged.times.is_empty(),
         };
         self.runs_with(bounds, t, flush)
+    }
+
+    /// Makes the staged columns ([`STAGED_BYTES_PER_VERTEX`] per vertex)
+    /// unless they are there: once, by the first [`Trajectories::runs`] or
+    /// ahead of it (`Engine::new`, so that a run's first window does not pay
+    /// for it); trajectories recorded only out of turn (the layer
+    /// predictor's) never make them.
+    pub fn make_staged_columns(&mut self) {
+        let n = self.len();
+        if self.staged.points.len() != STAGED_TICKS || self.staged.points[0].len() != n {
+            self.staged.points = vec![vec![DVec3::ZERO; n]; STAGED_TICKS];
+            self.staged.marked = vec![vec![false; n]; STAGED_TICKS];
+        }
     }
 
     /// The storage of consecutive runs of vertices (as for

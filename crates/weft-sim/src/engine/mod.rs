@@ -114,7 +114,8 @@ pub struct Engine<E: Executor = Serial> {
     pub world: World,
     exec: E,
     traj: Trajectories,
-    /// The layer predictor's scratch (`predict.rs`), made on first use.
+    /// The layer predictor's scratch (`predict.rs`): made with the engine
+    /// when prediction is on, else on first use (a resume may turn it on).
     predictor: Option<Predictor>,
     ws: Workspace,
     /// The broad phase's trees and scratch, reused across passes.
@@ -166,6 +167,7 @@ impl<E: Executor> Engine<E> {
     pub fn new(world: World, exec: E) -> Result<Self, SimError> {
         let n = world.num_vertices();
         let mut traj = Trajectories::new(n, world.limits.trajectory_budget_bytes);
+        traj.make_staged_columns();
         let share = (exec.ranks() > 1).then(|| RankShare::new(&world, exec.rank(), exec.ranks()));
         if let Some(share) = &share {
             // A vertex's breakpoints are stored by its owner only; others
@@ -196,6 +198,9 @@ impl<E: Executor> Engine<E> {
             far_stencils: false,
         };
         engine.far_stencils = engine.world.contact.split_islands;
+        if engine.world.contact.predict {
+            engine.make_predictor();
+        }
         engine.check_initial_state()?;
         Ok(engine)
     }

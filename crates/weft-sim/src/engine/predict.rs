@@ -278,6 +278,16 @@ impl Predicted {
 }
 
 impl<E: Executor> Engine<E> {
+    /// The predictor, made unless it is there: a run without prediction
+    /// keeps no memory for it.
+    pub(super) fn make_predictor(&mut self) {
+        let n = self.world.num_vertices();
+        let share = &self.share;
+        self.predictor.get_or_insert_with(|| {
+            Predictor::new(n, share.as_ref().map(|s| (s.owner.clone(), s.rank as u32)))
+        });
+    }
+
     /// Activates the predicted layers at the window start (every vertex is
     /// synchronized at `world.tick`). The same on every rank: the broad
     /// phase gives every rank every candidate, and the decisions read only
@@ -285,12 +295,8 @@ impl<E: Executor> Engine<E> {
     /// which every rank has in full; each is made on one rank and gathered.
     pub(super) fn predict_layers(&mut self, resolved: u32) -> Result<Predicted, CommError> {
         let _span = trace::span("predict");
-        // Made on first use: a run without prediction keeps no memory for it.
-        let n = self.world.num_vertices();
-        let share = &self.share;
-        let predictor = self.predictor.get_or_insert_with(|| {
-            Predictor::new(n, share.as_ref().map(|s| (s.owner.clone(), s.rank as u32)))
-        });
+        self.make_predictor();
+        let predictor = self.predictor.as_mut().expect("made above");
         let w = &self.world;
         // Accelerations from the internal forces and gravity (no contact:
         // the penalty forces only ever push apart).
