@@ -387,18 +387,30 @@ impl InternalForces {
         sum
     }
 
-    /// Elastic energy (stretch + bend) at positions `x`, summed in key order.
-    pub fn energy(&self, x: &[DVec3]) -> f64 {
+    /// How many stretch and hinge elements there are: the elements in
+    /// global key order are the stretch elements, then the hinges, and
+    /// [`InternalForces::energy_of`] sums a range of that order.
+    pub fn elements_by_key(&self) -> (usize, usize) {
+        (self.stretch_by_key.len(), self.hinge_by_key.len())
+    }
+
+    /// The elastic energy of the elements `range` of the key order (see
+    /// [`InternalForces::elements_by_key`]), summed in that order.
+    pub fn energy_of(&self, x: &[DVec3], range: std::ops::Range<usize>) -> f64 {
+        let ns = self.stretch_by_key.len();
         let mut e = 0.0;
-        for &s in &self.stretch_by_key {
-            let el = &self.stretch[s as usize];
-            let m = &self.materials[self.stretch_material[s as usize] as usize];
-            e += el.energy(&el.verts.map(|i| x[i as usize]), m);
-        }
-        for &h in &self.hinge_by_key {
-            let el = &self.hinges[h as usize];
-            let m = &self.materials[self.hinge_material[h as usize] as usize];
-            e += el.energy(&el.verts.map(|i| x[i as usize]), m.bending_stiffness);
+        for n in range {
+            if n < ns {
+                let s = self.stretch_by_key[n] as usize;
+                let el = &self.stretch[s];
+                let m = &self.materials[self.stretch_material[s] as usize];
+                e += el.energy(&el.verts.map(|i| x[i as usize]), m);
+            } else {
+                let h = self.hinge_by_key[n - ns] as usize;
+                let el = &self.hinges[h];
+                let m = &self.materials[self.hinge_material[h] as usize];
+                e += el.energy(&el.verts.map(|i| x[i as usize]), m.bending_stiffness);
+            }
         }
         e
     }

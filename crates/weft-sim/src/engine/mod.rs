@@ -28,6 +28,7 @@ mod commit;
 mod events;
 mod narrow;
 mod predict;
+mod stats;
 
 use glam::DVec3;
 use weft_core::{StencilKey, StencilKind};
@@ -45,7 +46,7 @@ use crate::state::EngineState;
 use crate::trace;
 use crate::trajectory::Trajectories;
 use crate::world::World;
-use events::{PassCounts, Workspace};
+use events::Workspace;
 use predict::{Predicted, Predictor};
 
 /// The state restored on rollback.
@@ -512,7 +513,9 @@ impl<E: Executor> Engine<E> {
             if reported.is_empty() {
                 let clock = StageClock::start(&self.exec);
                 let _commit_span = trace::span("commit");
-                let (retired, unreached) = match self.commit(&candidates, &predicted) {
+                let committed = (self.commit(&candidates, &predicted))
+                    .and_then(|done| Ok((done, self.stats_sums(&candidates)?)));
+                let ((retired, unreached), sums) = match committed {
                     Ok(done) => done,
                     Err(e) => {
                         snap.restore(&mut self.world);
@@ -522,6 +525,7 @@ impl<E: Executor> Engine<E> {
                 self.world.tick = t1;
                 let mut stats = self.window_stats(
                     counts,
+                    sums,
                     rollbacks,
                     candidates.len() as u64,
                     confirmed,
@@ -626,106 +630,6 @@ impl<E: Executor> Engine<E> {
         near.sort_unstable();
         near.dedup();
         near
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn window_stats(
-        &self,
-        counts: PassCounts,
-        rollbacks: u32,
-        candidates: u64,
-        confirmed: u64,
-        retired: u64,
-        candidate_keys: &[StencilKey],
-        started: Instant,
-    ) -> WindowStats {
-        let w = &self.world;
-        let mut min_sep = counts.min_separation;
-        for key in candidate_keys {
-            let x = key.v.map(|i| w.x[i as usize]);
-            min_sep = min_sep.min(stencil_closest(key.kind, &x).d);
-        }
-        let e = self.energies();
-        let (lin, ang) = self.momenta();
-        let hist = w.layers.depth_histogram();
-        WindowStats {
-            window: w.window_index,
-            time: w.time(),
-            tick: w.tick,
-            internal_events: counts.internal_events,
-            internal_stencil_evaluations: counts.internal_events * w.internal.num_stencils() as u64,
-            layer_events: counts.layer_events,
-            layer_evaluations: counts.layer_evaluations,
-            layer_kicks: counts.layer_kicks,
-            islands: counts.islands,
-            largest_island_layer_events: counts.largest_island_layer_events,
-            far_stencils: counts.far.far,
-            far_promoted: counts.far.promoted,
-            island_reruns: counts.far.reruns,
-            largest_unit_layer_events: counts.far.largest,
-            rollbacks,
-            active_stencils: w.layers.stencils.len() as u64,
-            max_depth: hist.len() as u32,
-            depth_histogram: hist,
-            candidates,
-            confirmed,
-            retired_layers: retired,
-            predicted_layers: 0,
-            detected_layers: 0,
-            predicted_unreached: 0,
-            breakpoints: self.traj.breakpoints() as u64,
-            queried_breakpoints: (candidate_keys.iter())
-                .flat_map(|k| k.v)
-                .map(|i| self.traj.count(i as usize) as u64)
-                .sum(),
-            certified_intervals: 0,
-            block_certified_intervals: 0,
-            min_separation: min_sep.is_finite().then_some(min_sep),
-            kinetic_energy: e.0,
-            potential_energy: e.1 + e.2,
-            contact_energy: e.2,
-            linear_momentum: lin.to_array(),
-            angular_momentum: ang.to_array(),
-            wall_seconds: started.elapsed().as_secs_f64(),
-            stage_seconds: StageSeconds::default(),
-        }
-    }
-
-    /// (kinetic, elastic + gravity, penalty) energy at the current
-    /// (synchronized) state.
-    pub fn energies(&self) -> (f64, f64, f64) {
-        let w = &self.world;
-        let mut kin = 0.0;
-        let mut grav = 0.0;
-        for i in 0..w.x.len() {
-            if w.inv_mass[i] > 0.0 {
-                kin += 0.5 * w.mass[i] * w.v[i].length_squared();
-                grav -= w.mass[i] * w.gravity.dot(w.x[i]);
-            }
-        }
-        let elastic = w.internal.energy(&w.x);
-        let mut penalty = 0.0;
-        for (key, s) in &w.layers.stencils {
-            let x = key.v.map(|i| w.x[i as usize]);
-            let d = stencil_closest(key.kind, &x).d;
-            penalty += w.schedule.energy_through(s.depth, d);
-        }
-        (kin, elastic + grav, penalty)
-    }
-
-    /// Linear and angular momentum (about the origin) of the dynamic vertices.
-    pub fn momenta(&self) -> (DVec3, DVec3) {
-        let w = &self.world;
-        let mut lin = DVec3::ZERO;
-        let mut ang = DVec3::ZERO;
-        for i in 0..w.x.len() {
-            if w.inv_mass[i] > 0.0 {
-                let p = w.v[i] * w.mass[i];
-                lin += p;
-                ang += w.x[i].cross(p);
-            }
-        }
-        (lin, ang)
     }
 
     /// Hash of the state: see [`crate::hash::state_hash`].
