@@ -17,7 +17,8 @@
 //! (`predict.rs`), the events of a pass
 //! (`events/`: internal ticks, contact islands and their penalty-layer
 //! batches, trajectories), the broad phase ([`crate::broad`]), the narrow
-//! phase (`narrow.rs`) and the commit (`commit.rs`: retiring layers).
+//! phase (`narrow.rs`), the commit (`commit.rs`: retiring layers) and the
+//! window's statistics (`stats.rs`).
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
