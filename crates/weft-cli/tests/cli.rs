@@ -48,9 +48,10 @@ fn crumple_hash_is_independent_of_partitioning() {
             "P = {partitions}: {} rollbacks, depth {}, peak active {}, hash {}",
             summary.rollbacks, summary.max_depth, summary.max_active_stencils, summary.state_hash
         );
-        // 14 rollbacks measured (prediction gives most layers before they
-        // are asked for: 20 and more before its margin and energy count).
-        assert!(summary.rollbacks >= 10, "{} rollbacks", summary.rollbacks);
+        // 7 rollbacks measured (prediction gives most layers before they
+        // are asked for: 14 before the resting margin and twice the closing
+        // energy, 20 and more before its margin and energy count).
+        assert!(summary.rollbacks >= 4, "{} rollbacks", summary.rollbacks);
         assert!(summary.max_depth >= 5, "depth {}", summary.max_depth);
         assert!(
             summary.max_active_stencils >= 300,
@@ -401,8 +402,10 @@ fn crumple_keeps_every_stencil_outside_its_next_layer() {
     println!(
         "crumple to 0.2 s: {rollbacks} rollbacks, depth {depth}, closest stencil {closest:e} m"
     );
+    // Measured: 4 rollbacks, depth 18 (prediction gives most layers before
+    // the detection asks; the detection still had to ask).
     assert!(
-        rollbacks >= 5 && depth >= 5,
+        rollbacks >= 2 && depth >= 5,
         "too little contact to mean anything"
     );
 }

@@ -334,6 +334,31 @@ mod tests {
         }
     }
 
+    /// `energy_through` stops at the first layer the distance is outside;
+    /// it must equal the sum over every layer, bit for bit, at distances
+    /// on, between and beyond the layers' `eta_l`.
+    #[test]
+    fn energy_through_equals_the_sum_over_every_layer() {
+        let s = schedule();
+        for depth in [0u32, 1, 2, 7, 40, 300] {
+            let mut ds = vec![0.0, 5e-5, 1e-4, 2e-3, s.eta_1];
+            for l in 1..=depth.min(60) {
+                let eta = s.eta(l);
+                ds.extend([
+                    eta,
+                    eta * (1.0 - 1e-12),
+                    eta * (1.0 + 1e-12),
+                    0.5 * (eta + s.eta(l + 1)),
+                ]);
+            }
+            for d in ds {
+                let every: f64 = (1..=depth).map(|l| s.energy(l, d)).fold(0.0, |a, e| a + e);
+                let sum = s.energy_through(depth, d);
+                assert_eq!(sum.to_bits(), every.to_bits(), "depth {depth} d {d}");
+            }
+        }
+    }
+
     #[test]
     fn schedule_is_nested_and_barrier_like() {
         let s = schedule();
