@@ -342,6 +342,19 @@ fn run_checked(
     };
     for _ in 0..windows {
         let stats = engine.step_window().expect("window commits");
+        // The statistics are the engine's energies at the window end
+        // (potential = elastic + gravity + contact), bit for bit.
+        let (kinetic, elastic_gravity, contact) = engine.energies();
+        assert_eq!(
+            (
+                stats.kinetic_energy,
+                stats.potential_energy,
+                stats.contact_energy
+            ),
+            (kinetic, elastic_gravity + contact, contact),
+            "window {}: the statistics' energies",
+            stats.window
+        );
         let c = check_window_end(engine);
         let floor = engine.world.schedule.eta_inf;
         if let Some(ms) = stats.min_separation {
