@@ -150,7 +150,7 @@ const RESTING_MARGIN: f64 = 1.1;
 /// rollbacks and wall, pairs run at the same time): 1 → 35 rollbacks in
 /// 8.30 s, **2 → 31 in 8.18 s**, 4 → 30 in 8.35 s, 8 → 28 in 8.63 s; at 4
 /// `drape` took 1.05× the time of 2 (its impacts got layers they never
-/// reached), at 2 no bundled scene changed by more than 1.5 %.
+/// reached), at 2 no bundled scene changed by more than 1.6 %.
 const CLOSING_ENERGY_FACTOR: f64 = 2.0;
 
 /// Whether an active stencil (depth ≥ 1) may reach its first inactive
