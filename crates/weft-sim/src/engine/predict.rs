@@ -366,30 +366,33 @@ impl<E: Executor> Engine<E> {
             0.5 * w.schedule.eta_1,
         )?;
         // Over ranks each candidate is decided on one rank (round robin:
-        // neighbouring keys cost alike) and every rank gets every answer.
+        // neighbouring keys cost alike), with the layers it gets (the
+        // energy count reads the state only, not the layers the others get),
+        // and every rank gets every answer.
         let ranks = self.exec.ranks() as u32;
         let owner: Vec<u32> = (0..keys.len() as u32).map(|n| n % ranks).collect();
-        let deeper: Vec<bool> = self.exec.map_on_ranks(keys.len(), &owner, &|n| {
-            let key = &keys[n];
-            let depth = w.layers.depth(key);
-            let eta_next = w.schedule.eta(depth + 1);
-            if depth >= resolved {
-                return false;
-            }
-            if depth > 0 {
-                return reaches_next_layer(w, key, depth, eta_next);
-            }
-            (1..=HORIZON_HALF_WINDOWS).any(|k| {
-                let x = key.v.map(|i| ahead(i as usize, k));
-                stencil_closest(key.kind, &x).d < NEW_CONTACT_MARGIN * eta_next
-            })
-        })?;
         let extra = w.contact.layers_per_detection;
+        let decided: Vec<Option<(u32, u32)>> =
+            self.exec.map_on_ranks(keys.len(), &owner, &|n| {
+                let key = &keys[n];
+                let depth = w.layers.depth(key);
+                let eta_next = w.schedule.eta(depth + 1);
+                if depth >= resolved {
+                    return None;
+                }
+                let deeper = if depth > 0 {
+                    reaches_next_layer(w, key, depth, eta_next)
+                } else {
+                    (1..=HORIZON_HALF_WINDOWS).any(|k| {
+                        let x = key.v.map(|i| ahead(i as usize, k));
+                        stencil_closest(key.kind, &x).d < NEW_CONTACT_MARGIN * eta_next
+                    })
+                };
+                deeper.then(|| (depth, layers_to_hold(w, key, depth, extra, resolved)))
+            })?;
         let mut predicted = Predicted::default();
-        for (key, deeper) in keys.iter().zip(deeper) {
-            if deeper {
-                let before = self.world.layers.depth(key);
-                let added = layers_to_hold(&self.world, key, before, extra, resolved);
+        for (key, decided) in keys.iter().zip(decided) {
+            if let Some((before, added)) = decided {
                 self.world.layers.deepen(*key, added);
                 predicted.stencils.push((*key, before, added));
                 predicted.layers += added as u64;
