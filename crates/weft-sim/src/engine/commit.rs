@@ -114,16 +114,17 @@ impl<E: Executor> Engine<E> {
                 decided_states[n] = state;
             }
         }
+        // `entries` are the map's entries in its own order, and nothing
+        // changed the map since: update each in place and drop the retired
+        // (one walk, instead of a search per stencil on every rank).
         let layers = &mut self.world.layers.stencils;
-        for ((key, _), (s, r, u)) in entries.iter().zip(decided_states) {
+        debug_assert_eq!(layers.len(), decided_states.len());
+        for (state, (s, r, u)) in layers.values_mut().zip(decided_states) {
             retired += r;
             unreached += u;
-            if s.depth == 0 {
-                layers.remove(key);
-            } else {
-                layers.insert(*key, s);
-            }
+            *state = s;
         }
+        layers.retain(|_, s| s.depth > 0);
         Ok((retired, unreached))
     }
 }
