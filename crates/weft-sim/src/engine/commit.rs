@@ -39,8 +39,14 @@ impl<E: Executor> Engine<E> {
         // ranks, fetched when held elsewhere.
         let ranks = self.exec.ranks();
         let holders = self.traj.holders();
+        // Both in key order: one merge walk.
+        debug_assert!(candidates.windows(2).all(|p| p[0] < p[1]));
+        let mut rest = candidates.iter().peekable();
         let near: Vec<bool> = (entries.iter())
-            .map(|(key, _)| candidates.binary_search(key).is_ok())
+            .map(|(key, _)| {
+                while rest.next_if(|c| *c < key).is_some() {}
+                rest.peek() == Some(&key)
+            })
             .collect();
         let mut by_rank: Vec<Vec<usize>> = vec![Vec::new(); ranks];
         for (n, (key, _)) in entries.iter().enumerate() {
