@@ -14,7 +14,7 @@ use weft_sim::kinematics::Motion;
 use weft_sim::materials::Material;
 use weft_sim::{
     ContactConfig, Engine, Executor, LimitsConfig, ObjectKind, ObjectSpec, Serial, TimeConfig,
-    World, WorldSpec,
+    WindowStats, World, WorldSpec,
 };
 use weft_testkit::Rng;
 
@@ -88,37 +88,50 @@ fn assert_same_state<A: Executor, B: Executor>(a: &Engine<A>, b: &Engine<B>, wha
     assert_eq!(a.world.layers, b.world.layers, "{what}: layers");
 }
 
-#[test]
-fn islands_on_threads_give_the_bits_of_the_global_schedule() {
+/// The four random scenes, 30 windows each, under the global schedule and
+/// on 2 threads with `configure(case, engine)` applied: the same state at
+/// every window end; `each(global's stats, the other's, what)` per window.
+fn against_the_global_schedule(
+    configure: impl Fn(usize, &mut Engine<Threads>),
+    mut each: impl FnMut(&WindowStats, &WindowStats, &str),
+) {
     let mut rng = Rng(0x1514);
-    let (mut most_islands, mut kicks) = (0u64, 0u64);
     for case in 0..4 {
         let spec = scene(&mut rng, case);
         let world = weft_par::build_world(&spec).unwrap();
-        let (mut global, mut islands) = global_and(world, Threads::new(2).unwrap());
-        // Every island alone, or the small ones packed in threes.
-        islands.set_island_packing([1, 3][case % 2]);
+        let (mut global, mut other) = global_and(world, Threads::new(2).unwrap());
+        configure(case, &mut other);
         for w in 0..30 {
             let a = global.step_window().unwrap();
-            let b = islands.step_window().unwrap();
+            let b = other.step_window().unwrap();
             let what = format!("case {case}, window {w}");
-            assert_same_state(&global, &islands, &what);
-            let counts = |s: &weft_sim::WindowStats| {
-                (
-                    s.layer_events,
-                    s.layer_evaluations,
-                    s.layer_kicks,
-                    s.breakpoints,
-                    s.rollbacks,
-                )
-            };
-            assert_eq!(counts(&a), counts(&b), "{what}: counts");
-            assert_eq!(a.min_separation, b.min_separation, "{what}");
-            assert!(a.islands <= 1, "{what}: one island");
-            most_islands = most_islands.max(b.islands);
-            kicks += b.layer_kicks;
+            assert_same_state(&global, &other, &what);
+            each(&a, &b, &what);
         }
     }
+}
+
+#[test]
+fn islands_on_threads_give_the_bits_of_the_global_schedule() {
+    let (mut most_islands, mut kicks) = (0u64, 0u64);
+    // Every island alone, or the small ones packed in threes.
+    let pack = |case: usize, e: &mut Engine<Threads>| e.set_island_packing([1, 3][case % 2]);
+    against_the_global_schedule(pack, |a, b, what| {
+        let counts = |s: &WindowStats| {
+            (
+                s.layer_events,
+                s.layer_evaluations,
+                s.layer_kicks,
+                s.breakpoints,
+                s.rollbacks,
+            )
+        };
+        assert_eq!(counts(a), counts(b), "{what}: counts");
+        assert_eq!(a.min_separation, b.min_separation, "{what}");
+        assert!(a.islands <= 1, "{what}: one island");
+        most_islands = most_islands.max(b.islands);
+        kicks += b.layer_kicks;
+    });
     println!("up to {most_islands} islands in a window, {kicks} kicks");
     assert!(
         most_islands >= 4,
@@ -135,22 +148,12 @@ fn islands_on_threads_give_the_bits_of_the_global_schedule() {
 /// (`determinism.rs`, `split_islands_keep_the_bits_on_every_executor`).
 #[test]
 fn far_stencils_split_the_islands_with_the_bits_of_the_global_schedule() {
-    let mut rng = Rng(0x1514);
     let (mut far, mut promoted) = (0u64, 0u64);
-    for case in 0..4 {
-        let spec = scene(&mut rng, case);
-        let world = weft_par::build_world(&spec).unwrap();
-        let (mut global, mut split) = global_and(world, Threads::new(2).unwrap());
-        split.split_far_stencils(true);
-        for w in 0..30 {
-            global.step_window().unwrap();
-            let b = split.step_window().unwrap();
-            let what = format!("case {case}, window {w}");
-            assert_same_state(&global, &split, &what);
-            far += b.far_stencils;
-            promoted += b.far_promoted;
-        }
-    }
+    let split = |_: usize, e: &mut Engine<Threads>| e.split_far_stencils(true);
+    against_the_global_schedule(split, |_, b, _| {
+        far += b.far_stencils;
+        promoted += b.far_promoted;
+    });
     println!("{far} far stencils at pass starts, {promoted} promoted");
     assert!(
         far > 2000 && promoted > 500,

@@ -71,7 +71,7 @@
 
 use glam::DVec3;
 use weft_core::StencilKey;
-use weft_geom::distance::stencil_closest;
+use weft_geom::distance::{stencil_closest, Closest};
 
 use super::Engine;
 use crate::executor::{CommError, Executor};
@@ -153,6 +153,21 @@ const RESTING_MARGIN: f64 = 1.1;
 /// reached), at 2 no bundled scene changed by more than 1.6 %.
 const CLOSING_ENERGY_FACTOR: f64 = 2.0;
 
+/// The closing kinetic energy the energy count reckons with, of `key` at
+/// its closest points `c`: along the normal, with `d' = Σ_j c_j n·v_j` and
+/// the effective mass `m = 1 / Σ_j c_j² w_j` (dynamic vertices only),
+/// `F m min(0, d')² / 2` with `F` = [`CLOSING_ENERGY_FACTOR`]; `None` when
+/// no vertex is dynamic.
+fn closing_energy(w: &crate::world::World, key: &StencilKey, c: &Closest) -> Option<f64> {
+    let (mut rate, mut m_inv) = (0.0, 0.0);
+    for j in 0..4 {
+        let i = key.v[j] as usize;
+        rate += c.coeff[j] * c.n.dot(w.v[i]);
+        m_inv += c.coeff[j] * c.coeff[j] * w.inv_mass[i];
+    }
+    (m_inv > 0.0).then(|| CLOSING_ENERGY_FACTOR * 0.5 * rate.min(0.0) * rate.min(0.0) / m_inv)
+}
+
 /// Whether an active stencil (depth ≥ 1) may reach its first inactive
 /// layer `eta_next`: it rests inside its layers within [`RESTING_MARGIN`]
 /// of it, or its closing kinetic energy exceeds the energy its active
@@ -178,16 +193,9 @@ fn reaches_next_layer(
     if !(c.d > eta_next) || (c.d < w.schedule.eta_1 && c.d < RESTING_MARGIN * eta_next) {
         return true;
     }
-    let (mut rate, mut m_inv) = (0.0, 0.0);
-    for j in 0..4 {
-        let i = key.v[j] as usize;
-        rate += c.coeff[j] * c.n.dot(w.v[i]);
-        m_inv += c.coeff[j] * c.coeff[j] * w.inv_mass[i];
-    }
-    if !(m_inv > 0.0) {
+    let Some(closing) = closing_energy(w, key, &c) else {
         return false;
-    }
-    let closing = CLOSING_ENERGY_FACTOR * 0.5 * rate.min(0.0) * rate.min(0.0) / m_inv;
+    };
     let barrier =
         w.schedule.energy_through(depth, eta_next) - w.schedule.energy_through(depth, c.d);
     closing > barrier
@@ -215,16 +223,9 @@ pub(super) fn layers_to_hold(
     let room = resolved.saturating_sub(depth);
     let x = key.v.map(|i| w.x[i as usize]);
     let c = stencil_closest(key.kind, &x);
-    let (mut rate, mut m_inv) = (0.0, 0.0);
-    for j in 0..4 {
-        let i = key.v[j] as usize;
-        rate += c.coeff[j] * c.n.dot(w.v[i]);
-        m_inv += c.coeff[j] * c.coeff[j] * w.inv_mass[i];
-    }
-    if !(m_inv > 0.0) {
+    let Some(closing) = closing_energy(w, key, &c) else {
         return min.min(room);
-    }
-    let closing = CLOSING_ENERGY_FACTOR * 0.5 * rate.min(0.0) * rate.min(0.0) / m_inv;
+    };
     // Whether `deep` layers hold it. Monotone in `deep` (a deeper next
     // layer, and more layers each storing more on the way to it); each test
     // sums `deep` energies.
