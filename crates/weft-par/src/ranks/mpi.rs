@@ -119,8 +119,17 @@ impl MpiTransport {
     /// this does not give up: a peer that never joins the collective hangs
     /// it (the launcher ends the run when a rank's process dies, and a rank
     /// that fails calls [`MpiTransport::abort`]).
-    /// The polling is counted as waiting, not work (`Traffic::wait_cpu_ns`).
-    fn complete<'a, D: ?Sized, S: Scope<'a>>(&self, mut request: Request<'a, D, S>) -> Status {
+    /// The polling is counted as waiting, not work (`Traffic::wait_cpu_ns`);
+    /// a request already complete at its first test reads no clock.
+    fn complete<'a, D: ?Sized, S: Scope<'a>>(&self, request: Request<'a, D, S>) -> Status {
+        let first = {
+            let _call = self.mpi_call();
+            request.test()
+        };
+        let mut request = match first {
+            Ok(status) => return status,
+            Err(unfinished) => unfinished,
+        };
         self.sent.waiting(|| {
             let mut backoff = Backoff::default();
             loop {
