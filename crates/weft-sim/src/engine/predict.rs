@@ -103,6 +103,8 @@ pub(super) struct Predictor {
     traj: Trajectories,
     /// Per vertex: its predicted acceleration.
     acc: Vec<DVec3>,
+    /// Per vertex: of a stencil inside its layers now (no acceleration).
+    held: Vec<bool>,
 }
 
 impl Predictor {
@@ -116,6 +118,7 @@ impl Predictor {
         Self {
             traj,
             acc: Vec::new(),
+            held: Vec::new(),
         }
     }
 }
@@ -314,30 +317,55 @@ impl<E: Executor> Engine<E> {
         self.make_predictor();
         let predictor = self.predictor.as_mut().expect("made above");
         let w = &self.world;
+        let exec = &self.exec;
         // Accelerations from the internal forces and gravity (no contact:
-        // the penalty forces only ever push apart).
+        // the penalty forces only ever push apart). Over ranks each vertex's
+        // is computed by its owner, from its partitions' slots and the
+        // boundary slots its neighbours send (as at an internal tick), and
+        // every rank gets every one with its exact bits.
         let (bounds, out) = self.ws.internal_scratch();
-        w.internal
-            .evaluate(&self.exec, bounds, &w.x, &w.v, out, None);
-        let acc = &mut predictor.acc;
-        acc.resize(w.x.len(), DVec3::ZERO);
-        for (i, a) in acc.iter_mut().enumerate() {
-            *a = if w.inv_mass[i] > 0.0 {
-                (w.internal.fold(i, out) - w.gravity * w.mass[i]) * -w.inv_mass[i]
-            } else {
-                DVec3::ZERO
-            };
+        match &self.share {
+            None => w.internal.evaluate(exec, bounds, &w.x, &w.v, out, None),
+            Some(share) => {
+                let boundary = Some(&share.boundary_partition[..]);
+                w.internal.evaluate(exec, bounds, &w.x, &w.v, out, boundary);
+                share.exchange_slots(exec, out, &mut |out| {
+                    let interior = Some(&share.interior_partition[..]);
+                    w.internal.evaluate(exec, bounds, &w.x, &w.v, out, interior);
+                })?;
+            }
         }
         // A vertex of a stencil inside its layers now is held by contact
         // forces this leaves out (a cloth resting on a sphere would be
         // predicted to fall into it): it moves on with its velocity only.
-        for key in w.layers.stencils.keys() {
+        // Each active stencil is tested on one rank (round robin).
+        let active: Vec<&StencilKey> = w.layers.stencils.keys().collect();
+        let ranks = exec.ranks() as u32;
+        let round_robin = |n: usize| -> Vec<u32> { (0..n as u32).map(|k| k % ranks).collect() };
+        let resting = exec.map_on_ranks(active.len(), &round_robin(active.len()), &|n| {
+            let key = active[n];
             let x = key.v.map(|i| w.x[i as usize]);
-            if stencil_closest(key.kind, &x).d < w.schedule.eta_1 {
-                for &i in &key.v {
-                    acc[i as usize] = DVec3::ZERO;
-                }
+            stencil_closest(key.kind, &x).d < w.schedule.eta_1
+        })?;
+        let held = &mut predictor.held;
+        held.clear();
+        held.resize(w.x.len(), false);
+        for (key, _) in active.iter().zip(&resting).filter(|(_, &r)| r) {
+            key.v.iter().for_each(|&i| held[i as usize] = true);
+        }
+        let held: &[bool] = held;
+        let out: &[DVec3] = out;
+        let acc_of = |i: usize| match w.inv_mass[i] > 0.0 && !held[i] {
+            true => (w.internal.fold(i, out) - w.gravity * w.mass[i]) * -w.inv_mass[i],
+            false => DVec3::ZERO,
+        };
+        let acc = &mut predictor.acc;
+        match &self.share {
+            None => {
+                acc.clear();
+                acc.extend((0..w.x.len()).map(acc_of));
             }
+            Some(share) => *acc = exec.map_on_ranks(w.x.len(), &share.owner, &acc_of)?,
         }
         let acc: &[DVec3] = acc;
         let half = w.lattice.window() / 2;
@@ -353,7 +381,12 @@ impl<E: Executor> Engine<E> {
         };
         let traj = &mut predictor.traj;
         traj.begin(w.tick, &w.x);
+        // Over ranks a vertex's samples are kept (and read by the broad
+        // phase) on its holder only.
         for i in 0..w.x.len() {
+            if !traj.holds(i) {
+                continue;
+            }
             for k in 1..=HORIZON_HALF_WINDOWS {
                 traj.record(i, w.tick + half * k, ahead(i, k))
                     .expect("the predicted motions have no budget");
@@ -370,11 +403,9 @@ impl<E: Executor> Engine<E> {
         // neighbouring keys cost alike), with the layers it gets (the
         // energy count reads the state only, not the layers the others get),
         // and every rank gets every answer.
-        let ranks = self.exec.ranks() as u32;
-        let owner: Vec<u32> = (0..keys.len() as u32).map(|n| n % ranks).collect();
         let extra = w.contact.layers_per_detection;
         let decided: Vec<Option<(u32, u32)>> =
-            self.exec.map_on_ranks(keys.len(), &owner, &|n| {
+            exec.map_on_ranks(keys.len(), &round_robin(keys.len()), &|n| {
                 let key = &keys[n];
                 let depth = w.layers.depth(key);
                 let eta_next = w.schedule.eta(depth + 1);
