@@ -323,6 +323,7 @@ impl<E: Executor> Engine<E> {
         // is computed by its owner, from its partitions' slots and the
         // boundary slots its neighbours send (as at an internal tick), and
         // every rank gets every one with its exact bits.
+        let forces = trace::span("predict forces");
         let (bounds, out) = self.ws.internal_scratch();
         match &self.share {
             None => w.internal.evaluate(exec, bounds, &w.x, &w.v, out, None),
@@ -368,6 +369,8 @@ impl<E: Executor> Engine<E> {
             Some(share) => *acc = exec.map_on_ranks(w.x.len(), &share.owner, &acc_of)?,
         }
         let acc: &[DVec3] = acc;
+        drop(forces);
+        let samples = trace::span("predict samples");
         let half = w.lattice.window() / 2;
         let now = w.time();
         let reach = w.schedule.eta_1;
@@ -392,6 +395,7 @@ impl<E: Executor> Engine<E> {
                     .expect("the predicted motions have no budget");
             }
         }
+        drop(samples);
         let keys = self.broad.candidates_on(
             &self.exec,
             &w.triangles,
@@ -404,6 +408,7 @@ impl<E: Executor> Engine<E> {
         // energy count reads the state only, not the layers the others get),
         // and every rank gets every answer.
         let extra = w.contact.layers_per_detection;
+        let _decide = trace::span("predict decide");
         let decided: Vec<Option<(u32, u32)>> =
             exec.map_on_ranks(keys.len(), &round_robin(keys.len()), &|n| {
                 let key = &keys[n];
