@@ -369,7 +369,9 @@ impl ChannelTransport {
         match inbox.try_recv() {
             Ok(bytes) => Ok(bytes),
             Err(TryRecvError::Disconnected) => Err(self.gone(j)),
-            Err(TryRecvError::Empty) => self.sent.waiting(|| inbox.recv()).map_err(|_| self.gone(j)),
+            Err(TryRecvError::Empty) => {
+                self.sent.waiting(|| inbox.recv()).map_err(|_| self.gone(j))
+            }
         }
     }
 }
