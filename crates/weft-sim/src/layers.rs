@@ -147,6 +147,27 @@ impl ActiveLayers {
         self.stencils.get(key).map_or(0, |s| s.depth)
     }
 
+    /// The depth of each of `keys` (ascending, as the broad phase gives
+    /// candidates), by one merge walk with the map: a search per key cost
+    /// more than the decision it fed (the layer predictor's and the narrow
+    /// phase's, tens of thousands of candidates a pass).
+    pub fn depths_of(&self, keys: &[StencilKey]) -> Vec<u32> {
+        debug_assert!(keys.windows(2).all(|p| p[0] <= p[1]), "keys in order");
+        let Some(first) = keys.first() else {
+            return Vec::new();
+        };
+        let mut active = self.stencils.range(first..).peekable();
+        keys.iter()
+            .map(|key| {
+                while active.next_if(|(k, _)| *k < key).is_some() {}
+                match active.peek() {
+                    Some((k, s)) if *k == key => s.depth,
+                    _ => 0,
+                }
+            })
+            .collect()
+    }
+
     /// The deepest active layer.
     pub fn max_depth(&self) -> u32 {
         self.stencils.values().map(|s| s.depth).max().unwrap_or(0)
@@ -332,6 +353,29 @@ mod tests {
             k_1: 10.0,
             h_1: 1 << 20,
         }
+    }
+
+    /// One merge walk gives what a search per key gives, for sorted keys
+    /// with repeats, active and not, before, among and after the active.
+    #[test]
+    fn depths_of_sorted_keys_match_a_search_each() {
+        use weft_core::StencilKey;
+        let key = |a: u32| StencilKey::edge_edge([a, a + 1], [a + 2, a + 3]);
+        let mut layers = ActiveLayers::default();
+        for a in (10..200).step_by(7) {
+            layers.deepen(key(a), 1 + a % 5);
+        }
+        let mut keys: Vec<StencilKey> = (0..260).step_by(3).map(key).collect();
+        keys.extend((10..200).step_by(14).map(key));
+        keys.sort();
+        let want: Vec<u32> = keys.iter().map(|k| layers.depth(k)).collect();
+        assert!(want.iter().filter(|&&d| d > 0).count() > 10);
+        assert_eq!(layers.depths_of(&keys), want);
+        assert!(layers.depths_of(&[]).is_empty());
+        assert_eq!(
+            ActiveLayers::default().depths_of(&keys),
+            vec![0; keys.len()]
+        );
     }
 
     /// `energy_through` stops at the first layer the distance is outside;

@@ -109,6 +109,7 @@ impl<E: Executor> Engine<E> {
             self.fetch_trajectories(reads)?;
         }
         let w = &self.world;
+        let depths = w.layers.depths_of(candidates);
         let traj = &self.traj;
         let costs = &mut self.narrow_costs;
         let home = self.share.as_ref().map_or(&[][..], |s| &s.home[..]);
@@ -120,7 +121,7 @@ impl<E: Executor> Engine<E> {
             let mut reported = Vec::new();
             for &c in &tasks.order[task.range.clone()] {
                 let key = &candidates[c as usize];
-                let eta = w.schedule.eta(w.layers.depth(key) + 1);
+                let eta = w.schedule.eta(depths[c as usize] + 1);
                 let tr = key.v.map(|i| traj.of(i as usize));
                 if proximity(key.kind, &tr, eta, &mut stats) {
                     reported.push(*key);

@@ -409,10 +409,11 @@ impl<E: Executor> Engine<E> {
         // and every rank gets every answer.
         let extra = w.contact.layers_per_detection;
         let _decide = trace::span("predict decide");
+        let depths = w.layers.depths_of(&keys);
         let decided: Vec<Option<(u32, u32)>> =
             exec.map_on_ranks(keys.len(), &round_robin(keys.len()), &|n| {
                 let key = &keys[n];
-                let depth = w.layers.depth(key);
+                let depth = depths[n];
                 let eta_next = w.schedule.eta(depth + 1);
                 if depth >= resolved {
                     return None;
