@@ -148,9 +148,10 @@ impl ActiveLayers {
     }
 
     /// The depth of each of `keys` (ascending, as the broad phase gives
-    /// candidates), by one merge walk with the map: a search per key cost
-    /// more than the decision it fed (the layer predictor's and the narrow
-    /// phase's, tens of thousands of candidates a pass).
+    /// candidates), by one merge walk with the map instead of a search per
+    /// key: the layer predictor and the narrow phase ask for tens of
+    /// thousands of candidates a pass, and the searches were a third of
+    /// the predictor's decisions.
     pub fn depths_of(&self, keys: &[StencilKey]) -> Vec<u32> {
         debug_assert!(keys.windows(2).all(|p| p[0] <= p[1]), "keys in order");
         let Some(first) = keys.first() else {

@@ -103,8 +103,9 @@ pub(super) struct Predictor {
     traj: Trajectories,
     /// Per vertex: its predicted acceleration.
     acc: Vec<DVec3>,
-    /// Per vertex: of a stencil inside its layers now (no acceleration).
-    held: Vec<bool>,
+    /// Per vertex: of a stencil resting inside its layers now (no
+    /// acceleration).
+    at_rest: Vec<bool>,
 }
 
 impl Predictor {
@@ -118,7 +119,7 @@ impl Predictor {
         Self {
             traj,
             acc: Vec::new(),
-            held: Vec::new(),
+            at_rest: Vec::new(),
         }
     }
 }
@@ -310,8 +311,9 @@ impl<E: Executor> Engine<E> {
     /// Activates the predicted layers at the window start (every vertex is
     /// synchronized at `world.tick`). The same on every rank: the broad
     /// phase gives every rank every candidate, and the decisions read only
-    /// positions, velocities, scripts, internal forces and the layer set,
-    /// which every rank has in full; each is made on one rank and gathered.
+    /// positions, velocities, scripts and the layer set, which every rank
+    /// has in full, and the accelerations, which every rank gets from the
+    /// vertices' owners; each decision is made on one rank and gathered.
     pub(super) fn predict_layers(&mut self, resolved: u32) -> Result<Predicted, CommError> {
         let _span = trace::span("predict");
         self.make_predictor();
@@ -348,15 +350,15 @@ impl<E: Executor> Engine<E> {
             let x = key.v.map(|i| w.x[i as usize]);
             stencil_closest(key.kind, &x).d < w.schedule.eta_1
         })?;
-        let held = &mut predictor.held;
-        held.clear();
-        held.resize(w.x.len(), false);
+        let at_rest = &mut predictor.at_rest;
+        at_rest.clear();
+        at_rest.resize(w.x.len(), false);
         for (key, _) in active.iter().zip(&resting).filter(|(_, &r)| r) {
-            key.v.iter().for_each(|&i| held[i as usize] = true);
+            key.v.iter().for_each(|&i| at_rest[i as usize] = true);
         }
-        let held: &[bool] = held;
+        let at_rest: &[bool] = at_rest;
         let out: &[DVec3] = out;
-        let acc_of = |i: usize| match w.inv_mass[i] > 0.0 && !held[i] {
+        let acc_of = |i: usize| match w.inv_mass[i] > 0.0 && !at_rest[i] {
             true => (w.internal.fold(i, out) - w.gravity * w.mass[i]) * -w.inv_mass[i],
             false => DVec3::ZERO,
         };
