@@ -176,6 +176,14 @@ impl<E: Executor> Engine<E> {
             // fetch what their tasks read.
             traj.hold_only(share.owner.clone(), share.rank as u32);
         }
+        // Room for a window's breakpoints of every moving vertex held here
+        // (one per internal tick), made now rather than by the first pass,
+        // as the staged columns are: a run's first window otherwise paid
+        // for it (22 ms at 10k, `docs/performance.md`).
+        let per_window = (world.lattice.window() / world.lattice.internal_step()) as usize + 2;
+        traj.reserve(per_window, |i| {
+            world.inv_mass[i] > 0.0 || world.script_of[i].is_some()
+        });
         let mut broad = BroadPhase::grouped(&world.partitioning.of_triangle);
         if exec.ranks() > 1 {
             // Each rank builds its partitions' trees and their neighbours'.
