@@ -32,6 +32,10 @@ use crate::world::World;
 /// vertices' positions (what [`distance_lower_bound`] starts from).
 type Anchor = (f64, [DVec3; 4]);
 
+/// Islands of at least this many vertices index their vertices by a dense
+/// map while they are built ([`Island::of`]).
+const DENSE_LOCAL_VERTICES: usize = 64;
+
 /// What the penalty scan decided for a stencil it read (stencils certainly
 /// outside every firing layer without room to doze leave no verdict).
 #[derive(Clone, Copy, Debug)]
@@ -261,7 +265,21 @@ impl Island {
         w: &World,
         start: Tick,
     ) -> Self {
-        let local = |i: u32| vertices.binary_search(&i).map_or(NONE, |j| j as u32);
+        // A global vertex's index among the island's: a dense map for a
+        // large island (a search per stencil vertex was most of building
+        // the twister's giant one, on one thread at the pass's start), a
+        // search for a small one (the map's memory would cost more).
+        let dense = (vertices.len() >= DENSE_LOCAL_VERTICES).then(|| {
+            let mut map = vec![NONE; w.num_vertices()];
+            for (j, &i) in vertices.iter().enumerate() {
+                map[i as usize] = j as u32;
+            }
+            map
+        });
+        let local = |i: u32| match &dense {
+            Some(map) => map[i as usize],
+            None => vertices.binary_search(&i).map_or(NONE, |j| j as u32),
+        };
         let mut kinematic: Vec<u32> = (members.iter())
             .flat_map(|a| a.0.v)
             .filter(|&i| local(i) == NONE)
