@@ -113,7 +113,7 @@ mod mpi {
 
     /// `state_hash` of the threads issue's determinism fixture, with layer
     /// prediction on (the same constant as `weft-par/tests/determinism.rs`).
-    const FIXTURE_HASH: &str = "5eb6807f29d073cab1f1ecb060621776";
+    const FIXTURE_HASH: &str = "7d6870e5fb7c0e5f63f8e3af3fdaad49";
     const FIXTURE: &[&str] = &[
         "--set",
         "size=300",

@@ -19,7 +19,7 @@ use weft_sim::{Engine, Executor, Serial, SimError};
 
 /// `state_hash` of the fixture below, with layer prediction on (the
 /// default). The hash includes the layer set, which prediction changes.
-const FIXTURE_HASH: &str = "5eb6807f29d073cab1f1ecb060621776";
+const FIXTURE_HASH: &str = "7d6870e5fb7c0e5f63f8e3af3fdaad49";
 
 /// `state_hash` of the fixture with `contact.predict=false`: the hash pinned
 /// before prediction became the default, so the numerics stay held too.
