@@ -56,8 +56,8 @@
 //! layer deeper, and fast impacts that took 5 layers per rollback, up to
 //! four rollbacks a window. The margin and the energy count took its
 //! rollbacks from 73 to 52, and the 10k twister's from 2 in 3 windows to
-//! none; the resting margin took `crumple`'s on to 35, and twice the
-//! closing energy to 31.
+//! none; the resting margin took `crumple`'s on to 35, twice the closing
+//! energy to 31, and the wider margin for contacts already closing to 27.
 //!
 //! Predicted layers retire like any other, after `retire_after_windows` calm
 //! windows. Measured on the 10k twister from its checkpoint: every stencil a
