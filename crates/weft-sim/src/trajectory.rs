@@ -349,12 +349,12 @@ impl Trajectories {
 
     /// Makes room for `per_vertex` breakpoints in each held vertex that
     /// `moves` (a vertex the internal ticks move gets one per tick): one
-    /// allocation each in a run's first window, instead of a doubling
-    /// every few flushes of the staged ticks, which took 10 ms a flush on
-    /// the 10k twister and did not scale over threads (the allocator's
-    /// lock). Capacity is kept across windows, so later calls do nothing;
-    /// nothing is reserved beyond the trajectory budget (the budget error
-    /// then comes from the breakpoints themselves).
+    /// allocation each, made with the engine, instead of a doubling every
+    /// few flushes of the staged ticks, which took 10 ms a flush on the
+    /// 10k twister and did not scale over threads (the allocator's lock).
+    /// Capacity is kept across windows; nothing is reserved beyond the
+    /// trajectory budget (the budget error then comes from the breakpoints
+    /// themselves).
     pub fn reserve(&mut self, per_vertex: usize, moves: impl Fn(usize) -> bool) {
         let reserved = (0..self.times.len())
             .filter(|&i| self.holder[i] == self.me && moves(i))

@@ -177,9 +177,9 @@ impl<E: Executor> Engine<E> {
             traj.hold_only(share.owner.clone(), share.rank as u32);
         }
         // Room for a window's breakpoints of every moving vertex held here
-        // (one per internal tick), made now rather than by the first pass,
-        // as the staged columns are: a run's first window otherwise paid
-        // for it (22 ms at 10k, `docs/performance.md`).
+        // (one per internal tick), made once, with the engine, as the staged
+        // columns are: made by a pass, a run's first window paid for it
+        // (22 ms at 10k, `docs/performance.md`).
         let per_window = (world.lattice.window() / world.lattice.internal_step()) as usize + 2;
         traj.reserve(per_window, |i| {
             world.inv_mass[i] > 0.0 || world.script_of[i].is_some()

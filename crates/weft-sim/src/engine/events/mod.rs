@@ -269,11 +269,8 @@ impl<E: Executor> Engine<E> {
         let begin = trace::span("pass begin");
         self.traj.begin(t0, &self.world.x);
         let h_el = self.world.lattice.internal_step();
-        let w = &self.world;
-        // every internal tick gives a moving vertex a breakpoint
-        self.traj.reserve(ticks_in(t0, t1, h_el) as usize + 2, |i| {
-            w.inv_mass[i] > 0.0 || w.script_of[i].is_some()
-        });
+        // (room for every internal tick's breakpoint of a moving vertex was
+        // made with the engine, `Engine::new`)
         let active: Vec<(StencilKey, u32)> = (self.world.layers.stencils.iter())
             .map(|(k, s)| (*k, s.depth))
             .collect();
