@@ -587,7 +587,15 @@ impl<E: Executor> Engine<E> {
                     });
                 }
                 let added = if self.world.contact.predict {
-                    predict::layers_to_hold(&self.world, key, depth, extra, resolved)
+                    let w = &self.world;
+                    predict::layers_to_hold(
+                        w,
+                        key,
+                        &predict::closest_now(w, key),
+                        depth,
+                        extra,
+                        resolved,
+                    )
                 } else {
                     extra.min(resolved - depth)
                 };

@@ -171,6 +171,13 @@ const RESTING_MARGIN: f64 = 1.1;
 /// reached), at 2 no bundled scene changed by more than 1.6 %.
 const CLOSING_ENERGY_FACTOR: f64 = 2.0;
 
+/// The closest points of `key`'s primitives at the state now (the window
+/// start): what every decision of the predictor and the energy count
+/// start from, computed once per decision.
+pub(super) fn closest_now(w: &crate::world::World, key: &StencilKey) -> Closest {
+    stencil_closest(key.kind, &key.v.map(|i| w.x[i as usize]))
+}
+
 /// The closing kinetic energy the energy count reckons with, of `key` at
 /// its closest points `c`: along the normal, with `d' = Σ_j c_j n·v_j` and
 /// the effective mass `m = 1 / Σ_j c_j² w_j` (dynamic vertices only),
@@ -203,15 +210,14 @@ fn closing_energy(w: &crate::world::World, key: &StencilKey, c: &Closest) -> Opt
 fn reaches_next_layer(
     w: &crate::world::World,
     key: &StencilKey,
+    c: &Closest,
     depth: u32,
     eta_next: f64,
 ) -> bool {
-    let x = key.v.map(|i| w.x[i as usize]);
-    let c = stencil_closest(key.kind, &x);
     if !(c.d > eta_next) || (c.d < w.schedule.eta_1 && c.d < RESTING_MARGIN * eta_next) {
         return true;
     }
-    let Some(closing) = closing_energy(w, key, &c) else {
+    let Some(closing) = closing_energy(w, key, c) else {
         return false;
     };
     let barrier =
@@ -230,18 +236,18 @@ fn reaches_next_layer(
 ///
 /// at most `resolved - depth`, with `F` = [`CLOSING_ENERGY_FACTOR`] for the
 /// energy the cloth around brings; the detection still asks for more when
-/// it does not hold.
+/// it does not hold. `c`: the stencil's closest points now
+/// ([`closest_now`]).
 pub(super) fn layers_to_hold(
     w: &crate::world::World,
     key: &StencilKey,
+    c: &Closest,
     depth: u32,
     min: u32,
     resolved: u32,
 ) -> u32 {
     let room = resolved.saturating_sub(depth);
-    let x = key.v.map(|i| w.x[i as usize]);
-    let c = stencil_closest(key.kind, &x);
-    let Some(closing) = closing_energy(w, key, &c) else {
+    let Some(closing) = closing_energy(w, key, c) else {
         return min.min(room);
     };
     // Whether `deep` layers hold it. Monotone in `deep` (a deeper next
@@ -360,9 +366,7 @@ impl<E: Executor> Engine<E> {
         let ranks = exec.ranks() as u32;
         let round_robin = |n: usize| -> Vec<u32> { (0..n as u32).map(|k| k % ranks).collect() };
         let resting = exec.map_on_ranks(active.len(), &round_robin(active.len()), &|n| {
-            let key = active[n];
-            let x = key.v.map(|i| w.x[i as usize]);
-            stencil_closest(key.kind, &x).d < w.schedule.eta_1
+            closest_now(w, active[n]).d < w.schedule.eta_1
         })?;
         let at_rest = &mut predictor.at_rest;
         at_rest.clear();
@@ -434,12 +438,11 @@ impl<E: Executor> Engine<E> {
                 if depth >= resolved {
                     return None;
                 }
+                let c = closest_now(w, key);
                 let deeper = if depth > 0 {
-                    reaches_next_layer(w, key, depth, eta_next)
+                    reaches_next_layer(w, key, &c, depth, eta_next)
                 } else {
-                    let x = key.v.map(|i| w.x[i as usize]);
-                    let closing = closing_energy(w, key, &stencil_closest(key.kind, &x))
-                        .is_some_and(|e| e > 0.0);
+                    let closing = closing_energy(w, key, &c).is_some_and(|e| e > 0.0);
                     let margin = match closing {
                         true => CLOSING_CONTACT_MARGIN,
                         false => NEW_CONTACT_MARGIN,
@@ -449,7 +452,7 @@ impl<E: Executor> Engine<E> {
                         stencil_closest(key.kind, &x).d < margin * eta_next
                     })
                 };
-                deeper.then(|| (depth, layers_to_hold(w, key, depth, extra, resolved)))
+                deeper.then(|| (depth, layers_to_hold(w, key, &c, depth, extra, resolved)))
             })?;
         let mut predicted = Predicted::default();
         for (key, decided) in keys.iter().zip(decided) {
