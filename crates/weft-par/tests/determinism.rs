@@ -377,3 +377,58 @@ fn a_blow_up_in_contact_stops_every_executor_at_the_same_vertex() {
         assert_eq!(o, &reference, "rank {rank} of 2");
     }
 }
+
+/// Over ranks the engine places the partitions again between windows by
+/// the load it measured (`engine/placement.rs`); which placement it takes
+/// follows wall-clock times, so this test takes them by hand instead: a
+/// different one after every window (some leave a rank without any
+/// partition), on 2 and 3 ranks of 1 and 2 threads. Every rank ends in the
+/// fixture's hash with every window's statistics.
+#[test]
+fn partitions_placed_again_between_windows_keep_the_bits() {
+    let partitions = 16;
+    let reference = run(Serial, partitions);
+    for (ranks, threads) in [(2, 1), (3, 1), (2, 2)] {
+        let local = |_| Threads::new(threads).unwrap();
+        let outcomes = in_process(ranks, local, |exec| {
+            let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/crumple.toml");
+            let sets = [
+                "size=300".into(),
+                "time.end=0.24".into(),
+                "time.steps_per_window=25".into(),
+                format!("partitions={partitions}"),
+            ];
+            let scene = load_scene(&path, &sets).unwrap();
+            let world = weft_par::build_world(&scene.world).unwrap();
+            let mut e = Engine::new(world, exec).unwrap();
+            let end = e.world.lattice.window_end_at_or_after(scene.end_time);
+            let mut stats = Vec::new();
+            let mut placed = 0u64;
+            while e.world.tick < end {
+                let mut s = e.step_window().unwrap();
+                (s.wall_seconds, s.stage_seconds) = (0.0, Default::default());
+                stats.push(s);
+                // Window w: partition p on rank (p * (w + 1) + w) mod R, or
+                // every third window all on rank w mod R.
+                let w = stats.len() as u32;
+                let home: Vec<u32> = (0..partitions as u32)
+                    .map(|p| match w % 3 {
+                        0 => w % ranks as u32,
+                        _ => (p * (w + 1) + w) % ranks as u32,
+                    })
+                    .collect();
+                e.place_partitions(home);
+                placed += 1;
+            }
+            assert!(e.placements >= placed, "{} placements", e.placements);
+            (e.state_hash(), stats)
+        });
+        for (rank, (hash, stats)) in outcomes.iter().enumerate() {
+            let label = format!("rank {rank} of {ranks} ({threads} threads), placed by hand");
+            assert_eq!(hash, FIXTURE_HASH, "{label}");
+            for (a, b) in stats.iter().zip(&reference.stats) {
+                assert_eq!(a, b, "{label}: statistics of window {}", b.window);
+            }
+        }
+    }
+}

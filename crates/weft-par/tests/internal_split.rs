@@ -54,14 +54,14 @@ fn split_matches_whole<E: Executor>(exec: &E, w: &World, rng: &mut Rng) {
         // Poisoned slots: each must be written by exactly one of the parts.
         let mut split = vec![DVec3::NAN; whole.len()];
         w.internal
-            .evaluate_masked(exec, &bounds, &x, &v, &mut split, &mask, true);
+            .evaluate_masked(exec, &bounds, &x, &v, &mut split, (&mask, true), None);
         w.internal
-            .evaluate_masked(exec, &bounds, &x, &v, &mut split, &mask, false);
+            .evaluate_masked(exec, &bounds, &x, &v, &mut split, (&mask, false), None);
         assert_eq!(bits(&split), bits(&whole), "share {share}");
         // Each part alone writes only its own elements' slots.
         let mut only_kept = vec![DVec3::NAN; whole.len()];
         w.internal
-            .evaluate_masked(exec, &bounds, &x, &v, &mut only_kept, &mask, true);
+            .evaluate_masked(exec, &bounds, &x, &v, &mut only_kept, (&mask, true), None);
         let written = only_kept.iter().filter(|g| !g.is_nan()).count();
         let kept_slots: usize = (mask.stretch.iter().filter(|&&b| b).count() * 3)
             + mask.hinges.iter().filter(|&&b| b).count() * 4;

@@ -180,13 +180,18 @@ pub trait Executor: Sync {
     /// `parts[j]` (one per rank; `None` sends nothing; this rank's own is
     /// kept). Returns every rank's head in rank order and the part each rank
     /// addressed to this one (its own in its place): results a rank computed
-    /// for the vertices another keeps, sent only there. On a single memory
+    /// for the vertices another keeps, sent only there. Runs `overlap`
+    /// after this rank's head and parts are sent, while it waits for the
+    /// others' (work that needs none of them; it must not communicate). On
+    /// a single memory `overlap` runs and the result is
     /// `(vec![head], parts)`.
     fn all_to_all<T: Message>(
         &self,
         head: Vec<u64>,
         parts: Vec<Option<T>>,
+        overlap: &mut dyn FnMut(),
     ) -> Result<Addressed<T>, CommError> {
+        overlap();
         Ok((vec![head], parts))
     }
 

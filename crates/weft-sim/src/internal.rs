@@ -239,8 +239,9 @@ impl InternalForces {
     /// As [`Self::evaluate`], but only the elements whose entry in `mask`
     /// is `want` (the others' slots are left as they are): an internal
     /// tick's elements split between the part computed while the contact
-    /// islands run and the rest. Each element writes its own slots, so the
-    /// bits do not depend on the split.
+    /// islands run and the rest; of the partitions `only` marks (all with
+    /// `None`). Each element writes its own slots, so the bits do not
+    /// depend on the split.
     #[allow(clippy::too_many_arguments)]
     pub fn evaluate_masked<E: Executor>(
         &self,
@@ -249,10 +250,13 @@ impl InternalForces {
         x: &[DVec3],
         v: &[DVec3],
         out: &mut [DVec3],
-        mask: &ElementMask,
-        want: bool,
+        (mask, want): (&ElementMask, bool),
+        only: Option<&[bool]>,
     ) {
         exec.for_each_chunk(out, bounds, &|p, chunk: &mut [DVec3]| {
+            if only.is_some_and(|own| !own[p]) {
+                return;
+            }
             let part = &self.partitions[p];
             let all = part.stretch.len() + part.hinges.len();
             let wanted = match want {

@@ -47,6 +47,8 @@ pub struct RankShare {
     pub ranks: usize,
     /// Per partition: the rank it is placed on (its home rank).
     pub home: Vec<u32>,
+    /// Per partition: placed on this rank (boundary or interior).
+    pub own_partition: Vec<bool>,
     /// Per partition: evaluated on this rank and computes a slot another
     /// rank folds (evaluated first; its slots travel).
     pub boundary_partition: Vec<bool>,
@@ -55,6 +57,12 @@ pub struct RankShare {
     pub interior_partition: Vec<bool>,
     /// Per vertex: the rank that folds and advances it (its owner).
     pub owner: Vec<u32>,
+    /// Per vertex: its owner under the placement by size
+    /// ([`crate::internal::InternalForces::home_ranks`]), whatever the
+    /// placement now: where a contact island counts its vertices to find
+    /// its home, so that moving partitions away from a rank loaded with
+    /// islands does not move its islands after them.
+    pub reference_owner: Vec<u32>,
     /// Per peer rank (ascending): the slots this rank computes that the
     /// peer's vertices fold (ascending).
     pub send_slots: Vec<(usize, Vec<u32>)>,
@@ -89,19 +97,34 @@ pub struct PassShare {
 }
 
 impl RankShare {
-    /// The share of `rank` of `ranks` in `world`.
+    /// The share of `rank` of `ranks` in `world`, the partitions placed by
+    /// size ([`crate::internal::InternalForces::home_ranks`]).
     pub fn new(world: &World, rank: usize, ranks: usize) -> Self {
+        Self::placed(world, rank, ranks, world.internal.home_ranks(ranks))
+    }
+
+    /// The share of `rank` of `ranks` in `world` with partition `p` placed
+    /// on rank `home[p]`.
+    pub fn placed(world: &World, rank: usize, ranks: usize, home: Vec<u32>) -> Self {
         let internal = &world.internal;
-        let home = internal.home_ranks(ranks);
+        assert_eq!(
+            home.len(),
+            internal.partitions.len(),
+            "a rank per partition"
+        );
         let n = world.num_vertices();
         // Vertices outside every partition (obstacles) in blocks.
         let blocks = place_in_blocks(n, ranks);
-        let owner: Vec<u32> = (0..n)
-            .map(|i| match world.partitioning.of_vertex.get(i) {
-                Some(&p) if p != NONE => home[p as usize],
-                _ => blocks[i],
-            })
-            .collect();
+        let owner_under = |home: &[u32]| -> Vec<u32> {
+            (0..n)
+                .map(|i| match world.partitioning.of_vertex.get(i) {
+                    Some(&p) if p != NONE => home[p as usize],
+                    _ => blocks[i],
+                })
+                .collect()
+        };
+        let owner = owner_under(&home);
+        let reference_owner = owner_under(&internal.home_ranks(ranks));
         let mut slot_partition = vec![0u32; internal.num_slots()];
         for (p, part) in internal.partitions.iter().enumerate() {
             slot_partition[part.slots.clone()].fill(p as u32);
@@ -165,13 +188,16 @@ impl RankShare {
         let interior_partition = (0..home.len())
             .map(|p| home[p] as usize == rank && !boundary_partition[p])
             .collect();
+        let own_partition = home.iter().map(|&r| r as usize == rank).collect();
         RankShare {
             rank,
             ranks,
+            own_partition,
             boundary_partition,
             interior_partition,
             home,
             owner,
+            reference_owner,
             send_slots,
             recv_slots,
             owned,
@@ -285,7 +311,7 @@ impl RankShare {
                 (!list.is_empty()).then(|| list.iter().map(|&k| v_new[k as usize]).collect())
             })
             .collect();
-        let (heads, parts) = exec.all_to_all(vec![flag, changed as u64], parts)?;
+        let (heads, parts) = exec.all_to_all(vec![flag, changed as u64], parts, &mut || {})?;
         if heads.len() != self.ranks || parts.len() != self.ranks {
             return Err(CommError(format!(
                 "rank {}: an exchange brought {} heads for {} ranks",

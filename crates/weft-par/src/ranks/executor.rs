@@ -175,6 +175,7 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         &self,
         head: Vec<u64>,
         parts: Vec<Option<R>>,
+        overlap: &mut dyn FnMut(),
     ) -> Result<weft_sim::executor::Addressed<R>, CommError> {
         let size = self.transport.size();
         let me = self.rank();
@@ -185,6 +186,7 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
             )));
         }
         if size == 1 {
+            overlap();
             return Ok((vec![head], parts));
         }
         // A part travels as an encoded `Option` (never empty); `None`, as
@@ -201,7 +203,7 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
                 Some(value) => self.encode(&Some(value))?,
             });
         }
-        let (heads, received) = self.transport.all_to_all(head, bytes)?;
+        let (heads, received) = self.transport.all_to_all(head, bytes, overlap)?;
         let mut out = Vec::with_capacity(size);
         for (j, part) in received.into_iter().enumerate() {
             out.push(if j == me {

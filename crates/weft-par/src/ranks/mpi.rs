@@ -267,6 +267,7 @@ impl Transport for MpiTransport {
         &self,
         head: Vec<u64>,
         mut parts: Vec<Vec<u8>>,
+        overlap: &mut dyn FnMut(),
     ) -> Result<HeadsAndParts, RankFailure> {
         let _collective = self
             .collective
@@ -294,12 +295,61 @@ impl Transport for MpiTransport {
             })
             .collect();
         let mut recv = vec![0u64; words * size];
-        mpi::request::scope(|scope| {
-            let request =
-                self.mpi_call()
-                    .world()
-                    .immediate_all_to_all_into(scope, &send[..], &mut recv[..]);
-            self.complete(request);
+        // The parts leave with the heads (none from a rank with a part too
+        // large: its head says so, with lengths 0), `overlap` runs while
+        // they travel, then the heads are completed and the parts announced
+        // received. Every announced part is received and every send
+        // completed, also when a rank then reports a part too large, so no
+        // request is left behind.
+        let (counts, received) = mpi::request::scope(|scope| {
+            let mut sent = Vec::new();
+            for (j, part) in parts.iter().enumerate() {
+                if too_large.is_none() && j != me && !part.is_empty() {
+                    let world = self.mpi_call().world();
+                    sent.push(
+                        world
+                            .process_at_rank(j as mpi::Rank)
+                            .immediate_send_with_tag(scope, &part[..], ALL_TO_ALL_TAG),
+                    );
+                }
+            }
+            mpi::request::scope(|heads| {
+                let request = self.mpi_call().world().immediate_all_to_all_into(
+                    heads,
+                    &send[..],
+                    &mut recv[..],
+                );
+                overlap();
+                self.complete(request);
+            });
+            let mut received: Vec<Vec<u8>> = (recv.chunks_exact(words).enumerate())
+                .map(|(j, c)| vec![0u8; if j == me { 0 } else { c[0] as usize }])
+                .collect();
+            let counts = mpi::request::scope(|arrivals| {
+                let mut arriving = Vec::new();
+                for (j, buffer) in received.iter_mut().enumerate() {
+                    if !buffer.is_empty() {
+                        let world = self.mpi_call().world();
+                        let request = world
+                            .process_at_rank(j as mpi::Rank)
+                            .immediate_receive_into_with_tag(
+                                arrivals,
+                                &mut buffer[..],
+                                ALL_TO_ALL_TAG,
+                            );
+                        arriving.push((j, request));
+                    }
+                }
+                (arriving.into_iter())
+                    .map(|(j, request)| {
+                        (j, self.complete(request).count(u8::equivalent_datatype()))
+                    })
+                    .collect::<Vec<(usize, Count)>>()
+            });
+            for request in sent {
+                self.complete(request);
+            }
+            (counts, received)
         });
         if let Some(j) = too_large {
             return Err(self.failure(format!(
@@ -314,40 +364,7 @@ impl Transport for MpiTransport {
         }
         let heads: Vec<Vec<u64>> = recv.chunks_exact(words).map(|c| c[2..].to_vec()).collect();
         let lens: Vec<usize> = recv.chunks_exact(words).map(|c| c[0] as usize).collect();
-        let mut received: Vec<Vec<u8>> = (0..size)
-            .map(|j| vec![0u8; if j == me { 0 } else { lens[j] }])
-            .collect();
-        let counts = mpi::request::scope(|scope| {
-            let mut sent = Vec::new();
-            for (j, part) in parts.iter().enumerate() {
-                if j != me && !part.is_empty() {
-                    let world = self.mpi_call().world();
-                    sent.push(
-                        world
-                            .process_at_rank(j as mpi::Rank)
-                            .immediate_send_with_tag(scope, &part[..], ALL_TO_ALL_TAG),
-                    );
-                }
-            }
-            let mut arriving = Vec::new();
-            for (j, buffer) in received.iter_mut().enumerate() {
-                if !buffer.is_empty() {
-                    let world = self.mpi_call().world();
-                    let request = world
-                        .process_at_rank(j as mpi::Rank)
-                        .immediate_receive_into_with_tag(scope, &mut buffer[..], ALL_TO_ALL_TAG);
-                    arriving.push((j, request));
-                }
-            }
-            let counts: Vec<(usize, Count)> = arriving
-                .into_iter()
-                .map(|(j, request)| (j, self.complete(request).count(u8::equivalent_datatype())))
-                .collect();
-            for request in sent {
-                self.complete(request);
-            }
-            counts
-        });
+        let mut received = received;
         for (j, count) in counts {
             if usize::try_from(count).ok() != Some(lens[j]) {
                 return Err(

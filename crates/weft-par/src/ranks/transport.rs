@@ -111,9 +111,15 @@ pub trait Transport: Send + Sync {
     /// its own is kept, not sent). Each gets every rank's head in rank order,
     /// and the part each rank addressed to it (its own `parts[rank]` in its
     /// place). An empty part sends no message: the heads and the lengths
-    /// travel in one dense step, the parts point to point.
-    fn all_to_all(&self, head: Vec<u64>, parts: Vec<Vec<u8>>)
-        -> Result<HeadsAndParts, RankFailure>;
+    /// travel in one dense step, the parts point to point. `overlap` runs
+    /// once this rank's head and parts are on their way, before it waits
+    /// for the others' (it must not communicate).
+    fn all_to_all(
+        &self,
+        head: Vec<u64>,
+        parts: Vec<Vec<u8>>,
+        overlap: &mut dyn FnMut(),
+    ) -> Result<HeadsAndParts, RankFailure>;
 
     /// **Point to point.** Starts sending `sends[k].1` to rank `sends[k].0`
     /// and receiving `recvs[k].1` bytes from rank `recvs[k].0`, runs
@@ -159,8 +165,9 @@ impl<T: Transport + ?Sized> Transport for &T {
         &self,
         head: Vec<u64>,
         parts: Vec<Vec<u8>>,
+        overlap: &mut dyn FnMut(),
     ) -> Result<HeadsAndParts, RankFailure> {
-        (**self).all_to_all(head, parts)
+        (**self).all_to_all(head, parts, overlap)
     }
 
     fn exchange(
@@ -412,11 +419,13 @@ impl Transport for ChannelTransport {
 
     /// The head (with the part's length) to every peer, then each
     /// non-empty part: one message each, in that order on each pair's
-    /// channel, so the counts match the MPI transport's.
+    /// channel, so the counts match the MPI transport's. Channels buffer:
+    /// the sends complete at once, `overlap` runs, then the receives wait.
     fn all_to_all(
         &self,
         head: Vec<u64>,
         mut parts: Vec<Vec<u8>>,
+        overlap: &mut dyn FnMut(),
     ) -> Result<HeadsAndParts, RankFailure> {
         let n = self.size();
         if parts.len() != n {
@@ -442,6 +451,7 @@ impl Transport for ChannelTransport {
                 self.send(j, std::mem::take(&mut parts[j]))?;
             }
         }
+        overlap();
         let mut heads = vec![Vec::new(); n];
         let mut received = vec![Vec::new(); n];
         for j in (0..n).filter(|&j| j != self.rank) {
@@ -583,7 +593,10 @@ mod tests {
                     let parts = (0..3)
                         .map(|j| vec![(10 * r + j) as u8; (r + j + round as usize) % 3])
                         .collect();
-                    let got = t.all_to_all(vec![r as u64, round], parts).unwrap();
+                    let mut overlapped = 0;
+                    let got = (t.all_to_all(vec![r as u64, round], parts, &mut || overlapped += 1))
+                        .unwrap();
+                    assert_eq!(overlapped, 1, "the overlap runs once");
                     t.all_gather(vec![r as u8]).unwrap();
                     got
                 })
@@ -609,7 +622,9 @@ mod tests {
         assert_eq!(first.received, vec![(0, 1)]);
         // a part list of the wrong length is an error
         let transports = ChannelTransport::connected(2);
-        let err = transports[0].all_to_all(vec![], vec![vec![]]).unwrap_err();
+        let err = transports[0]
+            .all_to_all(vec![], vec![vec![]], &mut || {})
+            .unwrap_err();
         assert!(err.to_string().contains("1 parts for 2 ranks"), "{err}");
     }
 

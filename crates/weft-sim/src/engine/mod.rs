@@ -28,6 +28,7 @@ use std::time::Instant;
 mod commit;
 mod events;
 mod narrow;
+mod placement;
 mod predict;
 mod stats;
 
@@ -48,6 +49,7 @@ use crate::trace;
 use crate::trajectory::Trajectories;
 use crate::world::World;
 use events::Workspace;
+use placement::EventsLoad;
 use predict::{Predicted, Predictor};
 
 /// The state restored on rollback.
@@ -133,6 +135,11 @@ pub struct Engine<E: Executor = Serial> {
     pub narrow_load: NarrowLoad,
     /// Over ranks: this rank's share of the internal ticks.
     share: Option<RankShare>,
+    /// Over ranks: what the last committed window's events stage cost this
+    /// rank (`placement.rs`), taken at the next window's start.
+    events_load: Option<EventsLoad>,
+    /// How many times the partitions were placed again (`placement.rs`).
+    pub placements: u64,
     /// Evaluate every penalty-layer event exactly (no sleeping, no
     /// distance-bound skip): the same bits, slower; for verifying the skips.
     every_layer_event: bool,
@@ -176,14 +183,7 @@ impl<E: Executor> Engine<E> {
             // fetch what their tasks read.
             traj.hold_only(share.owner.clone(), share.rank as u32);
         }
-        // Room for a window's breakpoints of every moving vertex held here
-        // (one per internal tick), made once, with the engine, as the staged
-        // columns are: made by a pass, a run's first window paid for it
-        // (22 ms at 10k, `docs/performance.md`).
-        let per_window = (world.lattice.window() / world.lattice.internal_step()) as usize + 2;
-        traj.reserve(per_window, |i| {
-            world.inv_mass[i] > 0.0 || world.script_of[i].is_some()
-        });
+        reserve_trajectories(&mut traj, &world);
         let mut broad = BroadPhase::grouped(&world.partitioning.of_triangle);
         if exec.ranks() > 1 {
             // Each rank builds its partitions' trees and their neighbours'.
@@ -202,6 +202,8 @@ impl<E: Executor> Engine<E> {
             narrow_costs: CostModel::default(),
             narrow_load: NarrowLoad::default(),
             share,
+            events_load: None,
+            placements: 0,
             every_layer_event: false,
             one_island: false,
             island_pack: events::PACK_STENCILS,
@@ -432,6 +434,7 @@ impl<E: Executor> Engine<E> {
         // The deepest layer a stencil may get (about 30 `pow` calls: once
         // per window, not per rollback).
         let resolved = self.world.schedule.resolved_depth();
+        self.place_partitions_by_load()?;
         let clock = StageClock::start(&self.exec);
         let predicted = if self.world.contact.predict {
             self.predict_layers(resolved)?
@@ -440,6 +443,7 @@ impl<E: Executor> Engine<E> {
         };
         (stages.predict, stages.cpu.predict, stages.sent.predict) = clock.stop(&self.exec);
         let mut detected_layers = 0u64;
+        let mut island_cpu = 0.0;
         loop {
             let clock = StageClock::start(&self.exec);
             let events_span = trace::span_with("events", "pass", rollbacks as u64);
@@ -458,6 +462,7 @@ impl<E: Executor> Engine<E> {
             );
             clock.add_to(&self.exec, stage);
             stages.internal += counts.internal_seconds;
+            island_cpu += counts.island_cpu;
             if let Some(e) = counts.interrupted.take() {
                 snap.restore(&mut self.world);
                 return Err(e);
@@ -548,6 +553,12 @@ impl<E: Executor> Engine<E> {
                     &mut stages.sent.commit,
                 );
                 clock.add_to(&self.exec, stage);
+                if self.share.is_some() {
+                    self.events_load = Some(EventsLoad {
+                        islands: island_cpu,
+                        rest: (stages.cpu.events - island_cpu).max(0.0),
+                    });
+                }
                 stats.stage_seconds = stages;
                 stats.predicted_layers = predicted.layers;
                 stats.predicted_unreached = unreached;
@@ -653,6 +664,18 @@ impl<E: Executor> Engine<E> {
     pub fn state_hash(&self) -> String {
         crate::hash::state_hash(&self.world)
     }
+}
+
+/// Makes room for a window's breakpoints of every moving vertex `traj`
+/// holds (one per internal tick): made with the engine (and when the
+/// partitions are placed again), as the staged columns are; made by a
+/// pass, a run's first window paid for it (22 ms at 10k,
+/// `docs/performance.md`).
+fn reserve_trajectories(traj: &mut Trajectories, world: &World) {
+    let per_window = (world.lattice.window() / world.lattice.internal_step()) as usize + 2;
+    traj.reserve(per_window, |i| {
+        world.inv_mass[i] > 0.0 || world.script_of[i].is_some()
+    });
 }
 
 fn kind_name(k: StencilKind) -> &'static str {

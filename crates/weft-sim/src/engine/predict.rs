@@ -123,6 +123,12 @@ pub(super) struct Predictor {
 }
 
 impl Predictor {
+    /// Over ranks: from now on each vertex's samples are kept by the rank
+    /// `holder` gives it (the partitions placed again).
+    pub(super) fn hold_only(&mut self, holder: Vec<u32>, me: u32) {
+        self.traj.hold_only(holder, me);
+    }
+
     /// For `n` vertices; over ranks each vertex's samples are kept by the
     /// rank `holder` gives it, as for the window's trajectories.
     pub fn new(n: usize, holder: Option<(Vec<u32>, u32)>) -> Self {

@@ -6,7 +6,7 @@ use std::time::Instant;
 use glam::DVec3;
 
 use super::island::SegmentOutput;
-use super::{bucket_by_run, budget_error, VERTEX_RUN};
+use super::{bucket_by_run, budget_error, CalmDone, VERTEX_RUN};
 use crate::clock::Tick;
 use crate::engine::Engine;
 use crate::error::SimError;
@@ -21,17 +21,17 @@ impl<E: Executor> Engine<E> {
     /// each vertex's ordered fold of its internal slots and then of its
     /// island's kicks at `t` (`islands`, in island order: each vertex's
     /// terms in (layer, key) order, where the global schedule folds them),
-    /// new velocities, and the new states with their breakpoints. With
-    /// `calm_bad`, the calm part ([`super::Calm`]) ran while the islands
-    /// did — the positions of the vertices outside every island, the
-    /// internal forces of the elements among them and the folds of the
-    /// calm vertices, with each run's first calm vertex that blows up —
-    /// and only the rest is computed here.
+    /// new velocities, and the new states with their breakpoints. What of
+    /// the calm part ([`super::Calm`]) ran with the islands, `calm_done` —
+    /// the positions of the vertices outside every island and the internal
+    /// forces of the elements among them, and on one memory the folds of
+    /// the calm vertices, with each run's first calm vertex that blows up —
+    /// is not computed again here.
     pub(super) fn internal_tick(
         &mut self,
         t: Tick,
         islands: &[SegmentOutput],
-        calm_bad: Option<Vec<Option<usize>>>,
+        calm_done: CalmDone,
         counts: &mut super::PassCounts,
     ) -> Result<(), SimError> {
         let _span = trace::span("internal tick");
@@ -45,10 +45,14 @@ impl<E: Executor> Engine<E> {
         // partition or an island) are advanced; the others stay as they
         // were until the pass ends.
         let share = self.share.as_ref();
-        let calm = (calm_bad.as_ref()).map(|_| ws.calm.as_ref().expect("a calm part"));
+        let (calm, calm_bad) = match calm_done {
+            CalmDone::Nothing => (None, None),
+            CalmDone::Forces => (ws.calm.as_ref(), None),
+            CalmDone::ForcesAndFolds(bad) => (ws.calm.as_ref(), Some(bad)),
+        };
         let live_in_run = match (share, calm) {
-            (Some(_), _) => Some(&ws.live_in_run[..]),
-            (None, Some(calm)) => Some(&calm.island_in_run[..]),
+            (_, Some(calm)) => Some(&calm.island_in_run[..]),
+            (Some(_), None) => Some(&ws.live_in_run[..]),
             (None, None) => None,
         };
         let positions = trace::span("tick positions");
@@ -61,26 +65,21 @@ impl<E: Executor> Engine<E> {
             });
         drop(positions);
         let (exec, bounds, xt) = (&self.exec, &ws.bounds, &ws.xt);
+        // The elements not computed with the islands (of the partitions
+        // `only` marks).
+        let rest = |out: &mut [DVec3], only: Option<&[bool]>| match calm {
+            None => (w.internal).evaluate(exec, bounds, xt, &w.v, out, only),
+            Some(calm) => {
+                let mask = (&calm.elements, false);
+                (w.internal).evaluate_masked(exec, bounds, xt, &w.v, out, mask, only)
+            }
+        };
         match share {
-            None => match calm {
-                None => (w.internal).evaluate(exec, bounds, xt, &w.v, &mut ws.out, None),
-                Some(calm) => (w.internal).evaluate_masked(
-                    exec,
-                    bounds,
-                    xt,
-                    &w.v,
-                    &mut ws.out,
-                    &calm.elements,
-                    false,
-                ),
-            },
+            None => rest(&mut ws.out, None),
             Some(share) => {
-                let boundary = Some(&share.boundary_partition[..]);
-                w.internal
-                    .evaluate(exec, bounds, xt, &w.v, &mut ws.out, boundary);
+                rest(&mut ws.out, Some(&share.boundary_partition));
                 share.exchange_slots(exec, &mut ws.out, &mut |out| {
-                    let interior = Some(&share.interior_partition[..]);
-                    w.internal.evaluate(exec, bounds, xt, &w.v, out, interior);
+                    rest(out, Some(&share.interior_partition));
                 })?;
             }
         }

@@ -75,6 +75,8 @@ pub(super) struct PassCounts {
     /// Wall seconds of the internal-force part of internal ticks (up to
     /// the new velocities).
     pub(super) internal_seconds: f64,
+    /// Over ranks: this rank's work CPU seconds in its islands' segments.
+    pub(super) island_cpu: f64,
     /// The pass ended early because a value became non-finite.
     pub(super) truncated: Option<SimError>,
     /// The pass stopped early because the engine was interrupted.
@@ -122,28 +124,67 @@ pub(super) struct Workspace {
 }
 
 /// What of an internal tick does not wait for the contact islands of the
-/// segment before it (one memory). Between two internal ticks the islands
-/// move only their own vertices, so every other vertex's position at the
-/// tick, the internal forces of the elements all of whose vertices lie
-/// outside every island, and the fold and new velocity of each vertex
-/// outside every island all of whose elements are such, are known when the
-/// segment starts: they are computed while the islands run
+/// segment before it. Between two internal ticks the islands move only
+/// their own vertices, so every other vertex's position at the tick, the
+/// internal forces of the elements all of whose vertices lie outside every
+/// island, and the fold and new velocity of each vertex outside every
+/// island all of whose elements are such, are known when the segment
+/// starts. On one memory they are computed while the islands run
 /// ([`Executor::join`]: a giant island keeps one thread, the others take
-/// these), the rest at the tick. Each is computed once, from the same
-/// state, so the bits are those of computing everything at the tick.
+/// these), the rest at the tick. Over ranks a rank computes its
+/// partitions' calm elements after its own islands and before it waits
+/// for the other ranks' island results, so a rank with a light share of
+/// the islands works through what a heavy one makes it wait for; every
+/// fold stays at the tick there (a fold may read slots from another rank).
+/// Each value is computed once, from the same state, so the bits are those
+/// of computing everything at the tick.
 #[derive(Debug)]
 pub(super) struct Calm {
     /// The elements with no island vertex.
     elements: crate::internal::ElementMask,
     /// Per run of vertices: the offsets of the island vertices, and of the
-    /// others.
+    /// others (over ranks: of those this rank keeps current).
     island_in_run: Vec<Vec<u16>>,
     calm_in_run: Vec<Vec<u16>>,
     /// Per run of vertices: the offsets of the vertices outside every
     /// island with only calm elements (their fold is calm too), and of the
-    /// others.
+    /// others (one memory only).
     calm_fold_in_run: Vec<Vec<u16>>,
     rest_fold_in_run: Vec<Vec<u16>>,
+}
+
+/// What of an internal tick ran before it, beside or after the islands of
+/// the segment before it ([`Calm`]).
+pub(super) enum CalmDone {
+    /// Nothing: the whole tick runs at the tick.
+    Nothing,
+    /// Over ranks: the calm positions and this rank's calm elements.
+    Forces,
+    /// On one memory: the calm positions, elements and folds, with each
+    /// run of vertices' first calm vertex that blew up.
+    ForcesAndFolds(Vec<Option<usize>>),
+}
+
+/// The calm part's positions at tick `e` and its elements' internal forces
+/// (of the partitions `only` marks; all with `None`).
+#[allow(clippy::too_many_arguments)]
+fn calm_forces<E: Executor>(
+    exec: &E,
+    world: &World,
+    calm: &Calm,
+    (vertex_runs, bounds): (&[usize], &[usize]),
+    (xt, out): (&mut [DVec3], &mut [DVec3]),
+    e: Tick,
+    only: Option<&[bool]>,
+) {
+    let _span = trace::span("calm forces");
+    exec.for_each_chunk(xt, vertex_runs, &|k, run| {
+        internal::each_in_run(Some(&calm.calm_in_run[k]), run.len(), |j| {
+            run[j] = Engine::<E>::pos_at(world, k * VERTEX_RUN + j, e);
+        });
+    });
+    let mask = (&calm.elements, true);
+    (world.internal).evaluate_masked(exec, bounds, xt, &world.v, out, mask, only);
 }
 
 /// The offsets in each run of [`VERTEX_RUN`] vertices (cut at `runs`) of
@@ -174,6 +215,12 @@ impl Workspace {
             bounds: world.internal.slot_bounds(),
             ..Default::default()
         }
+    }
+
+    /// Over ranks: the partitions were placed again (the owned vertices
+    /// changed).
+    pub(super) fn placed_again(&mut self) {
+        self.owned_in_run.clear();
     }
 
     /// The internal forces' slot bounds and output slots, as scratch
@@ -305,15 +352,26 @@ impl<E: Executor> Engine<E> {
             segments += 1;
             // On one memory the calm part of the internal tick runs beside
             // the islands; each run of vertices' first calm vertex that
-            // blows up comes back.
-            let (outputs, totals, calm_bad) = match internal && self.ws.calm.is_some() {
-                true => {
+            // blows up comes back. Over ranks its forces run after this
+            // rank's islands, before the other ranks' results are awaited.
+            let calm = internal && self.ws.calm.is_some();
+            let (outputs, totals, calm_done) = match (calm, self.share.is_some()) {
+                (true, false) => {
                     let (o, t, bad) = self.run_islands_and_calm(&layer_consts, (s, e), &mut counts);
-                    (o, t, Some(bad))
+                    (o, t, CalmDone::ForcesAndFolds(bad))
                 }
-                false => {
-                    let (o, t) = self.run_islands(&layer_consts, (s, e), internal)?;
-                    (o, t, None)
+                (calm, _) => {
+                    let (o, t) =
+                        self.run_islands(&layer_consts, (s, e), internal, calm, &mut counts)?;
+                    (
+                        o,
+                        t,
+                        if calm {
+                            CalmDone::Forces
+                        } else {
+                            CalmDone::Nothing
+                        },
+                    )
                 }
             };
             if let Some(blew_up) = self.apply_islands(&outputs, &totals, t0, &mut counts)? {
@@ -329,7 +387,7 @@ impl<E: Executor> Engine<E> {
             if !internal {
                 break;
             }
-            match self.internal_tick(b, &outputs, calm_bad, &mut counts) {
+            match self.internal_tick(b, &outputs, calm_done, &mut counts) {
                 Ok(()) => {}
                 Err(e @ SimError::NonFinite { .. }) => {
                     // As above, at the internal tick: the pass ends at `b`,
@@ -404,12 +462,14 @@ impl<E: Executor> Engine<E> {
         let pack_rank = match &self.share {
             None => vec![0; packs.len()],
             Some(share) => {
-                // Each pack's home: the rank owning most of its vertices.
+                // Each pack's home: the rank owning most of its vertices
+                // under the placement by size (`reference_owner`: not
+                // moved by the partitions placed by load).
                 let home: Vec<u32> = (0..packs.len())
                     .map(|k| {
                         let mut votes = vec![0usize; share.ranks];
                         for &i in packs.vertices_of(k) {
-                            votes[share.owner[i as usize] as usize] += 1;
+                            votes[share.reference_owner[i as usize] as usize] += 1;
                         }
                         (0..share.ranks)
                             .max_by(|&a, &b| votes[a].cmp(&votes[b]).then(b.cmp(&a)))
@@ -477,12 +537,25 @@ impl<E: Executor> Engine<E> {
         ws.pass_end = t1;
         ws.no_islands = packs.is_empty();
         ws.units = Units::new(&self.exec, w, specs, far, checked, t0, through);
-        ws.calm = (self.share.is_none() && !packs.is_empty()).then(|| {
+        let over_ranks = self.share.is_some();
+        ws.calm = (!packs.is_empty()).then(|| {
             let mut in_island = vec![false; w.num_vertices()];
             for &i in (0..packs.len()).flat_map(|k| packs.vertices_of(k)) {
                 in_island[i as usize] = true;
             }
             let elements = w.internal.mask_where(|i| !in_island[i as usize]);
+            if over_ranks {
+                // The positions by whether the vertex is in an island (made
+                // of those kept current here once the pass's share is
+                // known, below); every fold at the tick.
+                return Calm {
+                    elements,
+                    island_in_run: in_runs(&ws.vertex_runs, |i| in_island[i]),
+                    calm_in_run: in_runs(&ws.vertex_runs, |i| !in_island[i]),
+                    calm_fold_in_run: Vec::new(),
+                    rest_fold_in_run: Vec::new(),
+                };
+            }
             // A vertex folds calm when it is outside every island and
             // every element it sums is calm.
             let mut waits = in_island.clone();
@@ -513,6 +586,16 @@ impl<E: Executor> Engine<E> {
             ws.pass_share = share.pass(reads);
             let live = &ws.pass_share.live;
             ws.live_in_run = in_runs(&ws.vertex_runs, |i| live[i]);
+            if let Some(calm) = &mut ws.calm {
+                let runs = &ws.vertex_runs;
+                let keep_live = |lists: &mut Vec<Vec<u16>>| {
+                    for (k, list) in lists.iter_mut().enumerate() {
+                        list.retain(|&j| live[runs[k] + usize::from(j)]);
+                    }
+                };
+                keep_live(&mut calm.island_in_run);
+                keep_live(&mut calm.calm_in_run);
+            }
             if ws.owned_in_run.is_empty() {
                 ws.owned_in_run = in_runs(&ws.vertex_runs, |i| share.owns(i));
             }
@@ -533,6 +616,8 @@ impl<E: Executor> Engine<E> {
         layer_consts: &[(f64, f64, Tick)],
         (s, e): (Tick, Tick),
         internal: bool,
+        calm: bool,
+        counts: &mut PassCounts,
     ) -> Result<(Vec<SegmentOutput>, SegmentTotals), SimError> {
         if self.ws.no_islands {
             // (On every rank alike: no active stencil.)
@@ -546,14 +631,41 @@ impl<E: Executor> Engine<E> {
             split_batches: true,
             far_cap: &[],
         };
+        let (ranks, me) = (self.exec.ranks(), self.exec.rank() as u32);
+        let cpu = (ranks > 1).then(|| self.exec.work_cpu_seconds());
         let outputs = (self.ws.units).segment(&self.exec, &shared, (s, e), internal);
         let totals = SegmentTotals::of(&outputs);
-        let (ranks, me) = (self.exec.ranks(), self.exec.rank() as u32);
         if ranks == 1 {
             return Ok((outputs, totals));
         }
+        counts.island_cpu += self.exec.work_cpu_seconds() - cpu.expect("over ranks");
         let parts = self.address(&outputs);
-        let (heads, received) = self.exec.all_to_all(totals.words(), parts)?;
+        // This rank's calm part of the internal tick runs while the islands'
+        // results travel: it needs none of them.
+        let share = self.share.as_ref().expect("over ranks");
+        let (exec, world, ws) = (&self.exec, &self.world, &mut self.ws);
+        let mut seconds = 0.0;
+        let mut calm_part = || {
+            if let (true, Some(calm)) = (calm, &ws.calm) {
+                let clock = Instant::now();
+                let (runs, slots) = (
+                    (&ws.vertex_runs[..], &ws.bounds[..]),
+                    (&mut ws.xt[..], &mut ws.out[..]),
+                );
+                calm_forces(
+                    exec,
+                    world,
+                    calm,
+                    runs,
+                    slots,
+                    e,
+                    Some(&share.own_partition),
+                );
+                seconds = clock.elapsed().as_secs_f64();
+            }
+        };
+        let (heads, received) = exec.all_to_all(totals.words(), parts, &mut calm_part)?;
+        counts.internal_seconds += seconds;
         let mut all = SegmentTotals::default();
         for (j, head) in heads.iter().enumerate() {
             let theirs = SegmentTotals::from_words(head).ok_or_else(|| {
@@ -618,21 +730,7 @@ impl<E: Executor> Engine<E> {
             },
             &mut || {
                 let clock = Instant::now();
-                let _span = trace::span("calm forces");
-                exec.for_each_chunk(xt, vertex_runs, &|k, run| {
-                    internal::each_in_run(Some(&calm.calm_in_run[k]), run.len(), |j| {
-                        run[j] = Self::pos_at(world, k * VERTEX_RUN + j, e);
-                    });
-                });
-                (world.internal).evaluate_masked(
-                    exec,
-                    bounds,
-                    xt,
-                    &world.v,
-                    out,
-                    &calm.elements,
-                    true,
-                );
+                calm_forces(exec, world, calm, (vertex_runs, bounds), (xt, out), e, None);
                 let runs = (&calm.calm_fold_in_run[..], &vertex_runs[..]);
                 let slots = (&out[..], &xt[..]);
                 bad = internal::fold_listed(
