@@ -570,7 +570,7 @@ fn deliver_dops<E: Executor>(
             (r != me && !list.is_empty()).then(|| dops.collect())
         })
         .collect();
-    let (heads, received) = exec.all_to_all(head, parts, &mut || {})?;
+    let (heads, received) = exec.all_to_all(head, parts, &mut || false)?;
     for (r, part) in received.into_iter().enumerate() {
         if r == me {
             continue;

@@ -180,18 +180,20 @@ pub trait Executor: Sync {
     /// `parts[j]` (one per rank; `None` sends nothing; this rank's own is
     /// kept). Returns every rank's head in rank order and the part each rank
     /// addressed to this one (its own in its place): results a rank computed
-    /// for the vertices another keeps, sent only there. Runs `overlap`
-    /// after this rank's head and parts are sent, while it waits for the
-    /// others' (work that needs none of them; it must not communicate). On
-    /// a single memory `overlap` runs and the result is
-    /// `(vec![head], parts)`.
+    /// for the vertices another keeps, sent only there. While this rank
+    /// waits for the others' heads and parts (its own sent), `overlap` runs
+    /// pieces of work that need none of them, one per call, until it
+    /// returns `false` (no piece left) or everything has arrived: the
+    /// pieces left are the caller's (message-driven overlap; `overlap` must
+    /// not communicate). On a single memory nothing is awaited and the
+    /// result is `(vec![head], parts)`.
     fn all_to_all<T: Message>(
         &self,
         head: Vec<u64>,
         parts: Vec<Option<T>>,
-        overlap: &mut dyn FnMut(),
+        overlap: &mut dyn FnMut() -> bool,
     ) -> Result<Addressed<T>, CommError> {
-        overlap();
+        let _ = overlap;
         Ok((vec![head], parts))
     }
 

@@ -295,6 +295,18 @@ impl InternalForces {
         }
     }
 
+    /// Evaluates the elements of partition `p` whose entry in `mask` is
+    /// `want` into `chunk` (its output slots, `partitions[p].slots`).
+    pub fn evaluate_partition_masked(
+        &self,
+        p: usize,
+        (x, v): (&[DVec3], &[DVec3]),
+        chunk: &mut [DVec3],
+        (mask, want): (&ElementMask, bool),
+    ) {
+        self.evaluate_elements(p, x, v, chunk, Some((mask, want)));
+    }
+
     /// Evaluates partition `p`'s elements into `chunk` (its output slots,
     /// `partitions[p].slots`), reading only the positions and velocities of
     /// their vertices.

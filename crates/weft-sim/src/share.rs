@@ -47,8 +47,6 @@ pub struct RankShare {
     pub ranks: usize,
     /// Per partition: the rank it is placed on (its home rank).
     pub home: Vec<u32>,
-    /// Per partition: placed on this rank (boundary or interior).
-    pub own_partition: Vec<bool>,
     /// Per partition: evaluated on this rank and computes a slot another
     /// rank folds (evaluated first; its slots travel).
     pub boundary_partition: Vec<bool>,
@@ -188,11 +186,9 @@ impl RankShare {
         let interior_partition = (0..home.len())
             .map(|p| home[p] as usize == rank && !boundary_partition[p])
             .collect();
-        let own_partition = home.iter().map(|&r| r as usize == rank).collect();
         RankShare {
             rank,
             ranks,
-            own_partition,
             boundary_partition,
             interior_partition,
             home,
@@ -311,7 +307,7 @@ impl RankShare {
                 (!list.is_empty()).then(|| list.iter().map(|&k| v_new[k as usize]).collect())
             })
             .collect();
-        let (heads, parts) = exec.all_to_all(vec![flag, changed as u64], parts, &mut || {})?;
+        let (heads, parts) = exec.all_to_all(vec![flag, changed as u64], parts, &mut || false)?;
         if heads.len() != self.ranks || parts.len() != self.ranks {
             return Err(CommError(format!(
                 "rank {}: an exchange brought {} heads for {} ranks",

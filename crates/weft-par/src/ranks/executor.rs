@@ -175,7 +175,7 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         &self,
         head: Vec<u64>,
         parts: Vec<Option<R>>,
-        overlap: &mut dyn FnMut(),
+        overlap: &mut dyn FnMut() -> bool,
     ) -> Result<weft_sim::executor::Addressed<R>, CommError> {
         let size = self.transport.size();
         let me = self.rank();
@@ -186,7 +186,6 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
             )));
         }
         if size == 1 {
-            overlap();
             return Ok((vec![head], parts));
         }
         // A part travels as an encoded `Option` (never empty); `None`, as

@@ -122,14 +122,31 @@ impl MpiTransport {
     /// The polling is counted as waiting, not work (`Traffic::wait_cpu_ns`);
     /// a request already complete at its first test reads no clock.
     fn complete<'a, D: ?Sized, S: Scope<'a>>(&self, request: Request<'a, D, S>) -> Status {
-        let first = {
-            let _call = self.mpi_call();
-            request.test()
-        };
-        let mut request = match first {
-            Ok(status) => return status,
-            Err(unfinished) => unfinished,
-        };
+        self.complete_while(request, &mut || false)
+    }
+
+    /// [`Self::complete`], running `work` while the request is unfinished,
+    /// for as long as it runs a piece (`transport::pieces`); only the
+    /// polling after that counts as waiting.
+    fn complete_while<'a, D: ?Sized, S: Scope<'a>>(
+        &self,
+        request: Request<'a, D, S>,
+        work: &mut dyn FnMut() -> bool,
+    ) -> Status {
+        let mut request = request;
+        loop {
+            let tested = {
+                let _call = self.mpi_call();
+                request.test()
+            };
+            match tested {
+                Ok(status) => return status,
+                Err(unfinished) => request = unfinished,
+            }
+            if !work() {
+                break;
+            }
+        }
         self.sent.waiting(|| {
             let mut backoff = Backoff::default();
             loop {
@@ -267,7 +284,7 @@ impl Transport for MpiTransport {
         &self,
         head: Vec<u64>,
         mut parts: Vec<Vec<u8>>,
-        overlap: &mut dyn FnMut(),
+        overlap: &mut dyn FnMut() -> bool,
     ) -> Result<HeadsAndParts, RankFailure> {
         let _collective = self
             .collective
@@ -301,6 +318,7 @@ impl Transport for MpiTransport {
         // received. Every announced part is received and every send
         // completed, also when a rank then reports a part too large, so no
         // request is left behind.
+        let mut overlap = super::transport::pieces(overlap);
         let (counts, received) = mpi::request::scope(|scope| {
             let mut sent = Vec::new();
             for (j, part) in parts.iter().enumerate() {
@@ -319,8 +337,7 @@ impl Transport for MpiTransport {
                     &send[..],
                     &mut recv[..],
                 );
-                overlap();
-                self.complete(request);
+                self.complete_while(request, &mut overlap);
             });
             let mut received: Vec<Vec<u8>> = (recv.chunks_exact(words).enumerate())
                 .map(|(j, c)| vec![0u8; if j == me { 0 } else { c[0] as usize }])
@@ -342,7 +359,8 @@ impl Transport for MpiTransport {
                 }
                 (arriving.into_iter())
                     .map(|(j, request)| {
-                        (j, self.complete(request).count(u8::equivalent_datatype()))
+                        let status = self.complete_while(request, &mut overlap);
+                        (j, status.count(u8::equivalent_datatype()))
                     })
                     .collect::<Vec<(usize, Count)>>()
             });

@@ -111,14 +111,16 @@ pub trait Transport: Send + Sync {
     /// its own is kept, not sent). Each gets every rank's head in rank order,
     /// and the part each rank addressed to it (its own `parts[rank]` in its
     /// place). An empty part sends no message: the heads and the lengths
-    /// travel in one dense step, the parts point to point. `overlap` runs
-    /// once this rank's head and parts are on their way, before it waits
-    /// for the others' (it must not communicate).
+    /// travel in one dense step, the parts point to point. While this rank
+    /// waits for the others' heads and parts (its own on their way),
+    /// `overlap` runs pieces of work that need none of them, one per call,
+    /// until it returns `false` (no piece left) or everything has arrived;
+    /// the pieces left are the caller's. It must not communicate.
     fn all_to_all(
         &self,
         head: Vec<u64>,
         parts: Vec<Vec<u8>>,
-        overlap: &mut dyn FnMut(),
+        overlap: &mut dyn FnMut() -> bool,
     ) -> Result<HeadsAndParts, RankFailure>;
 
     /// **Point to point.** Starts sending `sends[k].1` to rank `sends[k].0`
@@ -165,7 +167,7 @@ impl<T: Transport + ?Sized> Transport for &T {
         &self,
         head: Vec<u64>,
         parts: Vec<Vec<u8>>,
-        overlap: &mut dyn FnMut(),
+        overlap: &mut dyn FnMut() -> bool,
     ) -> Result<HeadsAndParts, RankFailure> {
         (**self).all_to_all(head, parts, overlap)
     }
@@ -208,6 +210,20 @@ pub struct SyncStep {
     /// All-to-all and exchange: the bytes received, per peer, in the order
     /// received.
     pub received: Vec<(u32, u64)>,
+}
+
+/// `overlap` (one piece of work per call, `false` once none is left) as
+/// a wait's work: each call runs a piece and says whether it ran one, and
+/// `overlap` is not called again once it said none is left.
+pub(crate) fn pieces(overlap: &mut dyn FnMut() -> bool) -> impl FnMut() -> bool + '_ {
+    let mut more = true;
+    move || {
+        let ran = more;
+        if more {
+            more = overlap();
+        }
+        ran
+    }
 }
 
 /// The words of an all-to-all's head as bytes (little-endian), with the
@@ -371,13 +387,26 @@ impl ChannelTransport {
     /// system calls, which at 32 ranks cost more than most messages' work);
     /// only a wait is timed and counted as polling.
     fn receive(&self, j: usize) -> Result<Vec<u8>, RankFailure> {
+        self.receive_while(j, &mut || false)
+    }
+
+    /// [`Self::receive`], running `work` while the message has not come,
+    /// for as long as it runs a piece ([`pieces`]).
+    fn receive_while(
+        &self,
+        j: usize,
+        work: &mut dyn FnMut() -> bool,
+    ) -> Result<Vec<u8>, RankFailure> {
         let from = self.end(&self.from, j)?;
         let inbox = from.lock().map_err(|_| self.gone(j))?;
-        match inbox.try_recv() {
-            Ok(bytes) => Ok(bytes),
-            Err(TryRecvError::Disconnected) => Err(self.gone(j)),
-            Err(TryRecvError::Empty) => {
-                self.sent.waiting(|| inbox.recv()).map_err(|_| self.gone(j))
+        loop {
+            match inbox.try_recv() {
+                Ok(bytes) => return Ok(bytes),
+                Err(TryRecvError::Disconnected) => return Err(self.gone(j)),
+                Err(TryRecvError::Empty) if work() => {}
+                Err(TryRecvError::Empty) => {
+                    return self.sent.waiting(|| inbox.recv()).map_err(|_| self.gone(j));
+                }
             }
         }
     }
@@ -420,12 +449,13 @@ impl Transport for ChannelTransport {
     /// The head (with the part's length) to every peer, then each
     /// non-empty part: one message each, in that order on each pair's
     /// channel, so the counts match the MPI transport's. Channels buffer:
-    /// the sends complete at once, `overlap` runs, then the receives wait.
+    /// the sends complete at once; each receive runs `overlap`'s pieces
+    /// while its message has not come.
     fn all_to_all(
         &self,
         head: Vec<u64>,
         mut parts: Vec<Vec<u8>>,
-        overlap: &mut dyn FnMut(),
+        overlap: &mut dyn FnMut() -> bool,
     ) -> Result<HeadsAndParts, RankFailure> {
         let n = self.size();
         if parts.len() != n {
@@ -451,11 +481,11 @@ impl Transport for ChannelTransport {
                 self.send(j, std::mem::take(&mut parts[j]))?;
             }
         }
-        overlap();
         let mut heads = vec![Vec::new(); n];
         let mut received = vec![Vec::new(); n];
+        let mut overlap = pieces(overlap);
         for j in (0..n).filter(|&j| j != self.rank) {
-            let words = head_words(&self.receive(j)?);
+            let words = head_words(&self.receive_while(j, &mut overlap)?);
             if words.len() != head.len() + 1 {
                 return Err(RankFailure {
                     rank: self.rank,
@@ -468,7 +498,7 @@ impl Transport for ChannelTransport {
             }
             let len = words[0] as usize;
             if len > 0 {
-                received[j] = self.receive(j)?;
+                received[j] = self.receive_while(j, &mut overlap)?;
                 if received[j].len() != len {
                     return Err(RankFailure {
                         rank: self.rank,
@@ -593,10 +623,15 @@ mod tests {
                     let parts = (0..3)
                         .map(|j| vec![(10 * r + j) as u8; (r + j + round as usize) % 3])
                         .collect();
+                    // Pieces of work run while the others' messages have
+                    // not come, at most the three offered.
                     let mut overlapped = 0;
-                    let got = (t.all_to_all(vec![r as u64, round], parts, &mut || overlapped += 1))
-                        .unwrap();
-                    assert_eq!(overlapped, 1, "the overlap runs once");
+                    let mut overlap = || {
+                        overlapped += 1;
+                        overlapped < 3
+                    };
+                    let got = (t.all_to_all(vec![r as u64, round], parts, &mut overlap)).unwrap();
+                    assert!(overlapped <= 3, "{overlapped} pieces");
                     t.all_gather(vec![r as u8]).unwrap();
                     got
                 })
@@ -623,7 +658,7 @@ mod tests {
         // a part list of the wrong length is an error
         let transports = ChannelTransport::connected(2);
         let err = transports[0]
-            .all_to_all(vec![], vec![vec![]], &mut || {})
+            .all_to_all(vec![], vec![vec![]], &mut || false)
             .unwrap_err();
         assert!(err.to_string().contains("1 parts for 2 ranks"), "{err}");
     }

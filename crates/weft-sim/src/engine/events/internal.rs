@@ -45,15 +45,17 @@ impl<E: Executor> Engine<E> {
         // partition or an island) are advanced; the others stay as they
         // were until the pass ends.
         let share = self.share.as_ref();
-        let (calm, calm_bad) = match calm_done {
-            CalmDone::Nothing => (None, None),
-            CalmDone::Forces => (ws.calm.as_ref(), None),
-            CalmDone::ForcesAndFolds(bad) => (ws.calm.as_ref(), Some(bad)),
+        // (Over ranks the calm part may have been computed only in part:
+        // `positions`, and the partitions `ws.calm_done` marks.)
+        let (calm, calm_bad, positions) = match calm_done {
+            CalmDone::Nothing => (None, None, false),
+            CalmDone::Partly { positions } => (ws.calm.as_ref(), None, positions),
+            CalmDone::ForcesAndFolds(bad) => (ws.calm.as_ref(), Some(bad), true),
         };
         let live_in_run = match (share, calm) {
-            (_, Some(calm)) => Some(&calm.island_in_run[..]),
-            (Some(_), None) => Some(&ws.live_in_run[..]),
-            (None, None) => None,
+            (_, Some(calm)) if positions => Some(&calm.island_in_run[..]),
+            (Some(_), _) => Some(&ws.live_in_run[..]),
+            (None, _) => None,
         };
         let positions = trace::span("tick positions");
         self.exec
@@ -77,10 +79,26 @@ impl<E: Executor> Engine<E> {
         match share {
             None => rest(&mut ws.out, None),
             Some(share) => {
-                rest(&mut ws.out, Some(&share.boundary_partition));
-                share.exchange_slots(exec, &mut ws.out, &mut |out| {
-                    rest(out, Some(&share.interior_partition));
-                })?;
+                // Of each kind of partition, those whose calm elements are
+                // done get the rest, the others all their elements.
+                let done = &ws.calm_done;
+                let split = |kind: &[bool]| -> (Vec<bool>, Vec<bool>) {
+                    let of = |want: bool| {
+                        (kind.iter().enumerate())
+                            .map(|(p, &k)| k && done.get(p).copied().unwrap_or(false) == want)
+                            .collect()
+                    };
+                    (of(true), of(false))
+                };
+                let run = |out: &mut [DVec3], (rest_of, whole): &(Vec<bool>, Vec<bool>)| {
+                    (w.internal).evaluate(exec, bounds, xt, &w.v, out, Some(whole));
+                    if calm.is_some() {
+                        rest(out, Some(rest_of));
+                    }
+                };
+                run(&mut ws.out, &split(&share.boundary_partition));
+                let interior = split(&share.interior_partition);
+                share.exchange_slots(exec, &mut ws.out, &mut |out| run(out, &interior))?;
             }
         }
         // One pass per run of vertices: the ordered fold of the internal

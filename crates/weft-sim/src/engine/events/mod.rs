@@ -121,6 +121,9 @@ pub(super) struct Workspace {
     /// On one memory, with islands: what of each internal tick runs while
     /// the islands of the segment before it run.
     calm: Option<Calm>,
+    /// Over ranks, per partition: its calm elements were computed while
+    /// this rank waited for the islands' results.
+    calm_done: Vec<bool>,
 }
 
 /// What of an internal tick does not wait for the contact islands of the
@@ -131,11 +134,15 @@ pub(super) struct Workspace {
 /// island all of whose elements are such, are known when the segment
 /// starts. On one memory they are computed while the islands run
 /// ([`Executor::join`]: a giant island keeps one thread, the others take
-/// these), the rest at the tick. Over ranks a rank computes its
-/// partitions' calm elements after its own islands and before it waits
-/// for the other ranks' island results, so a rank with a light share of
-/// the islands works through what a heavy one makes it wait for; every
-/// fold stays at the tick there (a fold may read slots from another rank).
+/// these), the rest at the tick. Over ranks they are a rank's work while
+/// it waits for the other ranks' island results (message-driven: a rank
+/// with a light share of the islands works through what a heavy one makes
+/// it wait for): the calm positions, then its partitions' calm elements
+/// one partition at a time, boundary ones first, for as long as the
+/// results have not all come; what is left runs at the tick (the boundary
+/// partitions before their slots are sent, the interior ones while they
+/// travel), and every fold stays at the tick (a fold may read slots from
+/// another rank).
 /// Each value is computed once, from the same state, so the bits are those
 /// of computing everything at the tick.
 #[derive(Debug)]
@@ -151,6 +158,9 @@ pub(super) struct Calm {
     /// others (one memory only).
     calm_fold_in_run: Vec<Vec<u16>>,
     rest_fold_in_run: Vec<Vec<u16>>,
+    /// Over ranks: this rank's partitions with a calm element, boundary
+    /// ones first (the order their calm elements are computed in).
+    partitions: Vec<u32>,
 }
 
 /// What of an internal tick ran before it, beside or after the islands of
@@ -158,16 +168,16 @@ pub(super) struct Calm {
 pub(super) enum CalmDone {
     /// Nothing: the whole tick runs at the tick.
     Nothing,
-    /// Over ranks: the calm positions and this rank's calm elements.
-    Forces,
+    /// Over ranks: the calm positions if `positions`, and the calm elements
+    /// of the partitions [`Workspace::calm_done`] marks.
+    Partly { positions: bool },
     /// On one memory: the calm positions, elements and folds, with each
     /// run of vertices' first calm vertex that blew up.
     ForcesAndFolds(Vec<Option<usize>>),
 }
 
-/// The calm part's positions at tick `e` and its elements' internal forces
-/// (of the partitions `only` marks; all with `None`).
-#[allow(clippy::too_many_arguments)]
+/// On one memory: the calm part's positions at tick `e` and its elements'
+/// internal forces.
 fn calm_forces<E: Executor>(
     exec: &E,
     world: &World,
@@ -175,7 +185,6 @@ fn calm_forces<E: Executor>(
     (vertex_runs, bounds): (&[usize], &[usize]),
     (xt, out): (&mut [DVec3], &mut [DVec3]),
     e: Tick,
-    only: Option<&[bool]>,
 ) {
     let _span = trace::span("calm forces");
     exec.for_each_chunk(xt, vertex_runs, &|k, run| {
@@ -184,7 +193,7 @@ fn calm_forces<E: Executor>(
         });
     });
     let mask = (&calm.elements, true);
-    (world.internal).evaluate_masked(exec, bounds, xt, &world.v, out, mask, only);
+    (world.internal).evaluate_masked(exec, bounds, xt, &world.v, out, mask, None);
 }
 
 /// The offsets in each run of [`VERTEX_RUN`] vertices (cut at `runs`) of
@@ -352,8 +361,8 @@ impl<E: Executor> Engine<E> {
             segments += 1;
             // On one memory the calm part of the internal tick runs beside
             // the islands; each run of vertices' first calm vertex that
-            // blows up comes back. Over ranks its forces run after this
-            // rank's islands, before the other ranks' results are awaited.
+            // blows up comes back. Over ranks pieces of it run while this
+            // rank waits for the other ranks' island results.
             let calm = internal && self.ws.calm.is_some();
             let (outputs, totals, calm_done) = match (calm, self.share.is_some()) {
                 (true, false) => {
@@ -361,17 +370,12 @@ impl<E: Executor> Engine<E> {
                     (o, t, CalmDone::ForcesAndFolds(bad))
                 }
                 (calm, _) => {
-                    let (o, t) =
+                    let (o, t, positions) =
                         self.run_islands(&layer_consts, (s, e), internal, calm, &mut counts)?;
-                    (
-                        o,
-                        t,
-                        if calm {
-                            CalmDone::Forces
-                        } else {
-                            CalmDone::Nothing
-                        },
-                    )
+                    match calm {
+                        true => (o, t, CalmDone::Partly { positions }),
+                        false => (o, t, CalmDone::Nothing),
+                    }
                 }
             };
             if let Some(blew_up) = self.apply_islands(&outputs, &totals, t0, &mut counts)? {
@@ -548,12 +552,20 @@ impl<E: Executor> Engine<E> {
                 // The positions by whether the vertex is in an island (made
                 // of those kept current here once the pass's share is
                 // known, below); every fold at the tick.
+                let share = self.share.as_ref().expect("over ranks");
+                let kinds = [&share.boundary_partition, &share.interior_partition];
+                let partitions = (kinds.into_iter())
+                    .flat_map(|kind| (0..kind.len()).filter(|&p| kind[p]))
+                    .filter(|&p| elements.in_partition[p] > 0)
+                    .map(|p| p as u32)
+                    .collect();
                 return Calm {
                     elements,
                     island_in_run: in_runs(&ws.vertex_runs, |i| in_island[i]),
                     calm_in_run: in_runs(&ws.vertex_runs, |i| !in_island[i]),
                     calm_fold_in_run: Vec::new(),
                     rest_fold_in_run: Vec::new(),
+                    partitions,
                 };
             }
             // A vertex folds calm when it is outside every island and
@@ -573,6 +585,7 @@ impl<E: Executor> Engine<E> {
                 calm_in_run: in_runs(&ws.vertex_runs, |i| !in_island[i]),
                 calm_fold_in_run: in_runs(&ws.vertex_runs, |i| !waits[i]),
                 rest_fold_in_run: in_runs(&ws.vertex_runs, |i| waits[i]),
+                partitions: Vec::new(),
             }
         });
         if let Some(share) = &self.share {
@@ -618,10 +631,10 @@ impl<E: Executor> Engine<E> {
         internal: bool,
         calm: bool,
         counts: &mut PassCounts,
-    ) -> Result<(Vec<SegmentOutput>, SegmentTotals), SimError> {
+    ) -> Result<(Vec<SegmentOutput>, SegmentTotals, bool), SimError> {
         if self.ws.no_islands {
             // (On every rank alike: no active stencil.)
-            return Ok((Vec::new(), SegmentTotals::default()));
+            return Ok((Vec::new(), SegmentTotals::default(), false));
         }
         let shared = Shared {
             world: &self.world,
@@ -636,35 +649,42 @@ impl<E: Executor> Engine<E> {
         let outputs = (self.ws.units).segment(&self.exec, &shared, (s, e), internal);
         let totals = SegmentTotals::of(&outputs);
         if ranks == 1 {
-            return Ok((outputs, totals));
+            return Ok((outputs, totals, false));
         }
         counts.island_cpu += self.exec.work_cpu_seconds() - cpu.expect("over ranks");
         let parts = self.address(&outputs);
-        // This rank's calm part of the internal tick runs while the islands'
-        // results travel: it needs none of them.
-        let share = self.share.as_ref().expect("over ranks");
+        // While the islands' results travel, this rank computes pieces of
+        // the calm part of the internal tick (they need none of them): the
+        // calm positions, then one partition's calm elements per piece.
         let (exec, world, ws) = (&self.exec, &self.world, &mut self.ws);
-        let mut seconds = 0.0;
-        let mut calm_part = || {
-            if let (true, Some(calm)) = (calm, &ws.calm) {
-                let clock = Instant::now();
-                let (runs, slots) = (
-                    (&ws.vertex_runs[..], &ws.bounds[..]),
-                    (&mut ws.xt[..], &mut ws.out[..]),
-                );
-                calm_forces(
-                    exec,
-                    world,
-                    calm,
-                    runs,
-                    slots,
-                    e,
-                    Some(&share.own_partition),
-                );
-                seconds = clock.elapsed().as_secs_f64();
+        let parts_of = world.internal.partitions.len();
+        ws.calm_done.clear();
+        ws.calm_done.resize(parts_of, false);
+        let (mut positions, mut next, mut seconds) = (false, 0, 0.0);
+        let mut calm_piece = || -> bool {
+            let Some(calm) = ws.calm.as_ref().filter(|_| calm) else {
+                return false;
+            };
+            let clock = Instant::now();
+            if !positions {
+                exec.for_each_chunk(&mut ws.xt, &ws.vertex_runs, &|k, run| {
+                    internal::each_in_run(Some(&calm.calm_in_run[k]), run.len(), |j| {
+                        run[j] = Engine::<E>::pos_at(world, k * VERTEX_RUN + j, e);
+                    });
+                });
+                positions = true;
+            } else if let Some(&p) = calm.partitions.get(next) {
+                let p = p as usize;
+                let chunk = &mut ws.out[ws.bounds[p]..ws.bounds[p + 1]];
+                let (xv, mask) = ((&ws.xt[..], &world.v[..]), (&calm.elements, true));
+                (world.internal).evaluate_partition_masked(p, xv, chunk, mask);
+                ws.calm_done[p] = true;
+                next += 1;
             }
+            seconds += clock.elapsed().as_secs_f64();
+            next < calm.partitions.len()
         };
-        let (heads, received) = exec.all_to_all(totals.words(), parts, &mut calm_part)?;
+        let (heads, received) = exec.all_to_all(totals.words(), parts, &mut calm_piece)?;
         counts.internal_seconds += seconds;
         let mut all = SegmentTotals::default();
         for (j, head) in heads.iter().enumerate() {
@@ -681,7 +701,7 @@ impl<E: Executor> Engine<E> {
                 .filter(|(j, _)| *j != me as usize)
                 .filter_map(|(_, part)| part),
         );
-        Ok((outputs, all))
+        Ok((outputs, all, positions))
     }
 
     /// On one memory, every island's segment `[s, e)` and its kicks at the
@@ -730,7 +750,7 @@ impl<E: Executor> Engine<E> {
             },
             &mut || {
                 let clock = Instant::now();
-                calm_forces(exec, world, calm, (vertex_runs, bounds), (xt, out), e, None);
+                calm_forces(exec, world, calm, (vertex_runs, bounds), (xt, out), e);
                 let runs = (&calm.calm_fold_in_run[..], &vertex_runs[..]);
                 let slots = (&out[..], &xt[..]);
                 bad = internal::fold_listed(
