@@ -80,8 +80,14 @@ impl<E: Executor> Engine<E> {
             None => rest(&mut ws.out, None),
             Some(share) => {
                 // Of each kind of partition, those whose calm elements are
-                // done get the rest, the others all their elements.
-                let done = &ws.calm_done;
+                // done get the rest, the others all their elements (all of
+                // them without a calm part: `calm_done` is this tick's only
+                // with one).
+                let done = if calm.is_some() {
+                    &ws.calm_done[..]
+                } else {
+                    &[]
+                };
                 let split = |kind: &[bool]| -> (Vec<bool>, Vec<bool>) {
                     let of = |want: bool| {
                         (kind.iter().enumerate())
