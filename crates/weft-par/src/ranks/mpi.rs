@@ -135,11 +135,7 @@ impl MpiTransport {
     ) -> Status {
         let mut request = request;
         loop {
-            let tested = {
-                let _call = self.mpi_call();
-                request.test()
-            };
-            match tested {
+            match self.test(request) {
                 Ok(status) => return status,
                 Err(unfinished) => request = unfinished,
             }
@@ -150,11 +146,7 @@ impl MpiTransport {
         self.sent.waiting(|| {
             let mut backoff = Backoff::default();
             loop {
-                let tested = {
-                    let _call = self.mpi_call();
-                    request.test()
-                };
-                match tested {
+                match self.test(request) {
                     Ok(status) => return status,
                     Err(unfinished) => {
                         request = unfinished;
@@ -163,6 +155,15 @@ impl MpiTransport {
                 }
             }
         })
+    }
+
+    /// One `MPI_Test` of `request`: its status, or the request unfinished.
+    fn test<'a, D: ?Sized, S: Scope<'a>>(
+        &self,
+        request: Request<'a, D, S>,
+    ) -> Result<Status, Request<'a, D, S>> {
+        let _call = self.mpi_call();
+        request.test()
     }
 
     fn failure(&self, what: String) -> RankFailure {
