@@ -73,6 +73,9 @@ pub struct RankShare {
     /// Per vertex: an internal stencil of a partition placed on this rank
     /// reads it.
     pub read_here: Vec<bool>,
+    /// Per vertex: owned here, and folds a slot computed on another rank
+    /// (its fold waits for the boundary slots).
+    pub folds_remote: Vec<bool>,
     /// Per vertex `i`: the ranks other than its owner whose partitions read
     /// it (`reader_ranks[reader_start[i]..reader_start[i + 1]]`, ascending).
     reader_start: Vec<u32>,
@@ -130,6 +133,7 @@ impl RankShare {
         // (from, to) → slots computed on `from`, folded on `to`.
         let mut travel: BTreeMap<(usize, usize), Vec<u32>> = BTreeMap::new();
         let mut owned = vec![Vec::new(); ranks];
+        let mut folds_remote = vec![false; n];
         for i in 0..n {
             let to = owner[i] as usize;
             owned[to].push(i as u32);
@@ -137,6 +141,7 @@ impl RankShare {
                 let from = home[slot_partition[s as usize] as usize] as usize;
                 if from != to {
                     travel.entry((from, to)).or_default().push(s);
+                    folds_remote[i] |= to == rank;
                 }
             }
         }
@@ -198,6 +203,7 @@ impl RankShare {
             recv_slots,
             owned,
             read_here,
+            folds_remote,
             reader_start,
             reader_ranks,
         }

@@ -126,6 +126,13 @@ impl<E: Executor> Engine<E> {
         let (out, xt, kicks) = (&ws.out, &ws.xt, &ws.kicks_by_run);
         let owned_in_run = &ws.owned_in_run;
         let tick = TickConsts { out, xt, tsec, h };
+        // Over ranks, the runs whose calm folds ran while this rank waited
+        // (only with a calm part: `calm_folded` is this tick's only then).
+        let folded = if calm.is_some() {
+            &ws.calm_folded[..]
+        } else {
+            &[]
+        };
         self.exec.for_each_item(&mut fused, &|k, r| {
             let start = k * VERTEX_RUN;
             match (share, calm) {
@@ -136,7 +143,19 @@ impl<E: Executor> Engine<E> {
                 }
                 (Some(_), _) => {
                     let owned = owned_in_run[k].iter().map(|&j| usize::from(j));
-                    r.fold(w, &tick, start, &kicks[k], owned, true)
+                    let Some(&Some(calm_bad)) = folded.get(k) else {
+                        return r.fold(w, &tick, start, &kicks[k], owned, true);
+                    };
+                    // The rest, then the first of both that blows up and
+                    // the owned velocities that change before it.
+                    let calm = calm.expect("calm folds come with a calm part");
+                    let rest = calm.rest_fold_in_run[k].iter().map(|&j| usize::from(j));
+                    r.fold(w, &tick, start, &kicks[k], rest, false);
+                    r.bad = r.bad.into_iter().chain(calm_bad).min();
+                    let end = r.bad.map_or(usize::MAX, |b| b - start);
+                    r.changed = owned
+                        .filter(|&j| j < end && r.v_new[j] != w.v[start + j])
+                        .count();
                 }
             }
         });
@@ -323,6 +342,30 @@ pub(super) fn fold_listed<E: Executor>(
         r.fold(w, &tick, k * VERTEX_RUN, &[], js, false);
     });
     fused.iter().map(|r| r.bad).collect()
+}
+
+/// The fused per-vertex pass at tick `t` over the vertices at the offsets
+/// `listed` of the run of vertices from `start` (`acc` and `v_new` that
+/// run's), that no island kicks: over ranks, a run's calm folds. Returns
+/// its first listed vertex that blows up.
+pub(super) fn fold_run_listed(
+    w: &World,
+    (out, xt): (&[DVec3], &[DVec3]),
+    t: Tick,
+    (start, listed): (usize, &[u16]),
+    (acc, v_new): (&mut [DVec3], &mut [DVec3]),
+) -> Option<usize> {
+    let (h, tsec) = (w.lattice.h_el(), w.lattice.seconds(t));
+    let tick = TickConsts { out, xt, tsec, h };
+    let mut run = FoldRun {
+        acc,
+        v_new,
+        bad: None,
+        changed: 0,
+    };
+    let js = listed.iter().map(|&j| usize::from(j));
+    run.fold(w, &tick, start, &[], js, false);
+    run.bad
 }
 
 impl<'a> FoldRun<'a> {

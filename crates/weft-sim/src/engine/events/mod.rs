@@ -124,6 +124,9 @@ pub(super) struct Workspace {
     /// Over ranks, per partition: its calm elements were computed while
     /// this rank waited for the islands' results.
     calm_done: Vec<bool>,
+    /// Over ranks, per run of vertices: its calm folds were computed while
+    /// this rank waited, with the first of them that blows up.
+    calm_folded: Vec<Option<Option<usize>>>,
 }
 
 /// What of an internal tick does not wait for the contact islands of the
@@ -138,11 +141,11 @@ pub(super) struct Workspace {
 /// it waits for the other ranks' island results (message-driven: a rank
 /// with a light share of the islands works through what a heavy one makes
 /// it wait for): the calm positions, then its partitions' calm elements
-/// one partition at a time, boundary ones first, for as long as the
-/// results have not all come; what is left runs at the tick (the boundary
-/// partitions before their slots are sent, the interior ones while they
-/// travel), and every fold stays at the tick (a fold may read slots from
-/// another rank).
+/// one partition at a time, boundary ones first, then one run of vertices'
+/// calm folds at a time (of the owned vertices that also fold no slot
+/// from another rank), for as long as the results have not all come; what
+/// is left runs at the tick (the boundary partitions before their slots
+/// are sent, the interior ones while they travel, the other folds after).
 /// Each value is computed once, from the same state, so the bits are those
 /// of computing everything at the tick.
 #[derive(Debug)]
@@ -155,7 +158,8 @@ pub(super) struct Calm {
     calm_in_run: Vec<Vec<u16>>,
     /// Per run of vertices: the offsets of the vertices outside every
     /// island with only calm elements (their fold is calm too), and of the
-    /// others (one memory only).
+    /// others (over ranks: of the owned vertices, those that also fold no
+    /// slot from another rank, and the other owned ones).
     calm_fold_in_run: Vec<Vec<u16>>,
     rest_fold_in_run: Vec<Vec<u16>>,
     /// Over ranks: this rank's partitions with a calm element, boundary
@@ -548,26 +552,6 @@ impl<E: Executor> Engine<E> {
                 in_island[i as usize] = true;
             }
             let elements = w.internal.mask_where(|i| !in_island[i as usize]);
-            if over_ranks {
-                // The positions by whether the vertex is in an island (made
-                // of those kept current here once the pass's share is
-                // known, below); every fold at the tick.
-                let share = self.share.as_ref().expect("over ranks");
-                let kinds = [&share.boundary_partition, &share.interior_partition];
-                let partitions = (kinds.into_iter())
-                    .flat_map(|kind| (0..kind.len()).filter(|&p| kind[p]))
-                    .filter(|&p| elements.in_partition[p] > 0)
-                    .map(|p| p as u32)
-                    .collect();
-                return Calm {
-                    elements,
-                    island_in_run: in_runs(&ws.vertex_runs, |i| in_island[i]),
-                    calm_in_run: in_runs(&ws.vertex_runs, |i| !in_island[i]),
-                    calm_fold_in_run: Vec::new(),
-                    rest_fold_in_run: Vec::new(),
-                    partitions,
-                };
-            }
             // A vertex folds calm when it is outside every island and
             // every element it sums is calm.
             let mut waits = in_island.clone();
@@ -578,6 +562,28 @@ impl<E: Executor> Engine<E> {
                 (internal.hinges.iter().zip(&elements.hinges)).map(|(e, &c)| (&e.verts[..], c));
             for (verts, _) in stretch.chain(hinges).filter(|(_, calm)| !calm) {
                 verts.iter().for_each(|&i| waits[i as usize] = true);
+            }
+            if over_ranks {
+                // The positions by whether the vertex is in an island (made
+                // of those kept current here once the pass's share is
+                // known, below); of the owned vertices, those that fold
+                // calm and no slot from another rank, and the others.
+                let share = self.share.as_ref().expect("over ranks");
+                let local = |i: usize| share.owns(i) && !waits[i] && !share.folds_remote[i];
+                let kinds = [&share.boundary_partition, &share.interior_partition];
+                let partitions = (kinds.into_iter())
+                    .flat_map(|kind| (0..kind.len()).filter(|&p| kind[p]))
+                    .filter(|&p| elements.in_partition[p] > 0)
+                    .map(|p| p as u32)
+                    .collect();
+                return Calm {
+                    island_in_run: in_runs(&ws.vertex_runs, |i| in_island[i]),
+                    calm_in_run: in_runs(&ws.vertex_runs, |i| !in_island[i]),
+                    calm_fold_in_run: in_runs(&ws.vertex_runs, local),
+                    rest_fold_in_run: in_runs(&ws.vertex_runs, |i| share.owns(i) && !local(i)),
+                    elements,
+                    partitions,
+                };
             }
             Calm {
                 elements,
@@ -660,7 +666,11 @@ impl<E: Executor> Engine<E> {
         let parts_of = world.internal.partitions.len();
         ws.calm_done.clear();
         ws.calm_done.resize(parts_of, false);
+        ws.calm_folded.clear();
+        ws.calm_folded
+            .resize(ws.vertex_runs.len().saturating_sub(1), None);
         let (mut positions, mut next, mut seconds) = (false, 0, 0.0);
+        let runs = ws.vertex_runs.len().saturating_sub(1);
         let mut calm_piece = || -> bool {
             let Some(calm) = ws.calm.as_ref().filter(|_| calm) else {
                 return false;
@@ -680,9 +690,20 @@ impl<E: Executor> Engine<E> {
                 (world.internal).evaluate_partition_masked(p, xv, chunk, mask);
                 ws.calm_done[p] = true;
                 next += 1;
+            } else if next < calm.partitions.len() + runs {
+                // Once every calm element is in: a run of vertices' calm
+                // folds (their slots are all calm and computed here).
+                let k = next - calm.partitions.len();
+                let (a, b) = (ws.vertex_runs[k], ws.vertex_runs[k + 1]);
+                let listed = &calm.calm_fold_in_run[k];
+                let slots = (&ws.out[..], &ws.xt[..]);
+                let fold = (&mut ws.acc[a..b], &mut ws.v_new[a..b]);
+                let bad = internal::fold_run_listed(world, slots, e, (a, listed), fold);
+                ws.calm_folded[k] = Some(bad);
+                next += 1;
             }
             seconds += clock.elapsed().as_secs_f64();
-            next < calm.partitions.len()
+            next < calm.partitions.len() + runs
         };
         let (heads, received) = exec.all_to_all(totals.words(), parts, &mut calm_piece)?;
         counts.internal_seconds += seconds;
