@@ -6,7 +6,7 @@ use std::time::Instant;
 use glam::DVec3;
 
 use super::island::SegmentOutput;
-use super::{bucket_by_run, budget_error, CalmDone, VERTEX_RUN};
+use super::{bucket_by_run, budget_error, CalmDone, CalmProgress, VERTEX_RUN};
 use crate::clock::Tick;
 use crate::engine::Engine;
 use crate::error::SimError;
@@ -46,12 +46,14 @@ impl<E: Executor> Engine<E> {
         // were until the pass ends.
         let share = self.share.as_ref();
         // (Over ranks the calm part may have been computed only in part:
-        // `positions`, and the partitions `ws.calm_done` marks.)
-        let (calm, calm_bad, positions) = match calm_done {
-            CalmDone::Nothing => (None, None, false),
-            CalmDone::Partly { positions } => (ws.calm.as_ref(), None, positions),
-            CalmDone::ForcesAndFolds(bad) => (ws.calm.as_ref(), Some(bad), true),
+        // `progress`.)
+        let no_progress = CalmProgress::default();
+        let (calm, calm_bad, progress) = match &calm_done {
+            CalmDone::Nothing => (None, None, &no_progress),
+            CalmDone::Partly(progress) => (ws.calm.as_ref(), None, progress),
+            CalmDone::ForcesAndFolds(bad) => (ws.calm.as_ref(), Some(bad), &no_progress),
         };
+        let positions = progress.positions || calm_bad.is_some();
         let live_in_run = match (share, calm) {
             (_, Some(calm)) if positions => Some(&calm.island_in_run[..]),
             (Some(_), _) => Some(&ws.live_in_run[..]),
@@ -80,14 +82,8 @@ impl<E: Executor> Engine<E> {
             None => rest(&mut ws.out, None),
             Some(share) => {
                 // Of each kind of partition, those whose calm elements are
-                // done get the rest, the others all their elements (all of
-                // them without a calm part: `calm_done` is this tick's only
-                // with one).
-                let done = if calm.is_some() {
-                    &ws.calm_done[..]
-                } else {
-                    &[]
-                };
+                // done get the rest, the others all their elements.
+                let done = &progress.elements;
                 let split = |kind: &[bool]| -> (Vec<bool>, Vec<bool>) {
                     let of = |want: bool| {
                         (kind.iter().enumerate())
@@ -126,13 +122,8 @@ impl<E: Executor> Engine<E> {
         let (out, xt, kicks) = (&ws.out, &ws.xt, &ws.kicks_by_run);
         let owned_in_run = &ws.owned_in_run;
         let tick = TickConsts { out, xt, tsec, h };
-        // Over ranks, the runs whose calm folds ran while this rank waited
-        // (only with a calm part: `calm_folded` is this tick's only then).
-        let folded = if calm.is_some() {
-            &ws.calm_folded[..]
-        } else {
-            &[]
-        };
+        // Over ranks, the runs whose calm folds ran while this rank waited.
+        let folded = &progress.folds;
         self.exec.for_each_item(&mut fused, &|k, r| {
             let start = k * VERTEX_RUN;
             match (share, calm) {
@@ -162,7 +153,7 @@ impl<E: Executor> Engine<E> {
         if let Some(calm_bad) = calm_bad {
             // Each run's first vertex that blows up, of the calm ones and
             // the others.
-            for (r, calm) in fused.iter_mut().zip(calm_bad) {
+            for (r, &calm) in fused.iter_mut().zip(calm_bad) {
                 r.bad = r.bad.into_iter().chain(calm).min();
             }
         }

@@ -121,12 +121,6 @@ pub(super) struct Workspace {
     /// On one memory, with islands: what of each internal tick runs while
     /// the islands of the segment before it run.
     calm: Option<Calm>,
-    /// Over ranks, per partition: its calm elements were computed while
-    /// this rank waited for the islands' results.
-    calm_done: Vec<bool>,
-    /// Over ranks, per run of vertices: its calm folds were computed while
-    /// this rank waited, with the first of them that blows up.
-    calm_folded: Vec<Option<Option<usize>>>,
 }
 
 /// What of an internal tick does not wait for the contact islands of the
@@ -172,12 +166,42 @@ pub(super) struct Calm {
 pub(super) enum CalmDone {
     /// Nothing: the whole tick runs at the tick.
     Nothing,
-    /// Over ranks: the calm positions if `positions`, and the calm elements
-    /// of the partitions [`Workspace::calm_done`] marks.
-    Partly { positions: bool },
+    /// Over ranks: how far the pieces got while this rank waited.
+    Partly(CalmProgress),
     /// On one memory: the calm positions, elements and folds, with each
     /// run of vertices' first calm vertex that blew up.
     ForcesAndFolds(Vec<Option<usize>>),
+}
+
+/// Over ranks, the calm part of one internal tick done while the rank
+/// waited for the islands' results: held by the tick's [`CalmDone`], so
+/// no mark outlives its tick.
+#[derive(Debug, Default)]
+pub(super) struct CalmProgress {
+    /// The calm positions.
+    pub(super) positions: bool,
+    /// Per partition: its calm elements.
+    pub(super) elements: Vec<bool>,
+    /// Per run of vertices: its calm folds, with the first of them that
+    /// blows up.
+    pub(super) folds: Vec<Option<Option<usize>>>,
+}
+
+/// The calm part's positions at tick `e` (those of the vertices outside
+/// every island).
+fn calm_positions<E: Executor>(
+    exec: &E,
+    world: &World,
+    calm: &Calm,
+    vertex_runs: &[usize],
+    xt: &mut [DVec3],
+    e: Tick,
+) {
+    exec.for_each_chunk(xt, vertex_runs, &|k, run| {
+        internal::each_in_run(Some(&calm.calm_in_run[k]), run.len(), |j| {
+            run[j] = Engine::<E>::pos_at(world, k * VERTEX_RUN + j, e);
+        });
+    });
 }
 
 /// On one memory: the calm part's positions at tick `e` and its elements'
@@ -191,11 +215,7 @@ fn calm_forces<E: Executor>(
     e: Tick,
 ) {
     let _span = trace::span("calm forces");
-    exec.for_each_chunk(xt, vertex_runs, &|k, run| {
-        internal::each_in_run(Some(&calm.calm_in_run[k]), run.len(), |j| {
-            run[j] = Engine::<E>::pos_at(world, k * VERTEX_RUN + j, e);
-        });
-    });
+    calm_positions(exec, world, calm, vertex_runs, xt, e);
     let mask = (&calm.elements, true);
     (world.internal).evaluate_masked(exec, bounds, xt, &world.v, out, mask, None);
 }
@@ -374,12 +394,7 @@ impl<E: Executor> Engine<E> {
                     (o, t, CalmDone::ForcesAndFolds(bad))
                 }
                 (calm, _) => {
-                    let (o, t, positions) =
-                        self.run_islands(&layer_consts, (s, e), internal, calm, &mut counts)?;
-                    match calm {
-                        true => (o, t, CalmDone::Partly { positions }),
-                        false => (o, t, CalmDone::Nothing),
-                    }
+                    self.run_islands(&layer_consts, (s, e), internal, calm, &mut counts)?
                 }
             };
             if let Some(blew_up) = self.apply_islands(&outputs, &totals, t0, &mut counts)? {
@@ -637,10 +652,10 @@ impl<E: Executor> Engine<E> {
         internal: bool,
         calm: bool,
         counts: &mut PassCounts,
-    ) -> Result<(Vec<SegmentOutput>, SegmentTotals, bool), SimError> {
+    ) -> Result<(Vec<SegmentOutput>, SegmentTotals, CalmDone), SimError> {
         if self.ws.no_islands {
             // (On every rank alike: no active stencil.)
-            return Ok((Vec::new(), SegmentTotals::default(), false));
+            return Ok((Vec::new(), SegmentTotals::default(), CalmDone::Nothing));
         }
         let shared = Shared {
             world: &self.world,
@@ -655,7 +670,7 @@ impl<E: Executor> Engine<E> {
         let outputs = (self.ws.units).segment(&self.exec, &shared, (s, e), internal);
         let totals = SegmentTotals::of(&outputs);
         if ranks == 1 {
-            return Ok((outputs, totals, false));
+            return Ok((outputs, totals, CalmDone::Nothing));
         }
         counts.island_cpu += self.exec.work_cpu_seconds() - cpu.expect("over ranks");
         let parts = self.address(&outputs);
@@ -663,32 +678,27 @@ impl<E: Executor> Engine<E> {
         // the calm part of the internal tick (they need none of them): the
         // calm positions, then one partition's calm elements per piece.
         let (exec, world, ws) = (&self.exec, &self.world, &mut self.ws);
-        let parts_of = world.internal.partitions.len();
-        ws.calm_done.clear();
-        ws.calm_done.resize(parts_of, false);
-        ws.calm_folded.clear();
-        ws.calm_folded
-            .resize(ws.vertex_runs.len().saturating_sub(1), None);
-        let (mut positions, mut next, mut seconds) = (false, 0, 0.0);
         let runs = ws.vertex_runs.len().saturating_sub(1);
+        let mut done = CalmProgress {
+            positions: false,
+            elements: vec![false; world.internal.partitions.len()],
+            folds: vec![None; runs],
+        };
+        let (mut next, mut seconds) = (0, 0.0);
         let mut calm_piece = || -> bool {
             let Some(calm) = ws.calm.as_ref().filter(|_| calm) else {
                 return false;
             };
             let clock = Instant::now();
-            if !positions {
-                exec.for_each_chunk(&mut ws.xt, &ws.vertex_runs, &|k, run| {
-                    internal::each_in_run(Some(&calm.calm_in_run[k]), run.len(), |j| {
-                        run[j] = Engine::<E>::pos_at(world, k * VERTEX_RUN + j, e);
-                    });
-                });
-                positions = true;
+            if !done.positions {
+                calm_positions(exec, world, calm, &ws.vertex_runs, &mut ws.xt, e);
+                done.positions = true;
             } else if let Some(&p) = calm.partitions.get(next) {
                 let p = p as usize;
                 let chunk = &mut ws.out[ws.bounds[p]..ws.bounds[p + 1]];
                 let (xv, mask) = ((&ws.xt[..], &world.v[..]), (&calm.elements, true));
                 (world.internal).evaluate_partition_masked(p, xv, chunk, mask);
-                ws.calm_done[p] = true;
+                done.elements[p] = true;
                 next += 1;
             } else if next < calm.partitions.len() + runs {
                 // Once every calm element is in: a run of vertices' calm
@@ -699,7 +709,7 @@ impl<E: Executor> Engine<E> {
                 let slots = (&ws.out[..], &ws.xt[..]);
                 let fold = (&mut ws.acc[a..b], &mut ws.v_new[a..b]);
                 let bad = internal::fold_run_listed(world, slots, e, (a, listed), fold);
-                ws.calm_folded[k] = Some(bad);
+                done.folds[k] = Some(bad);
                 next += 1;
             }
             seconds += clock.elapsed().as_secs_f64();
@@ -722,7 +732,11 @@ impl<E: Executor> Engine<E> {
                 .filter(|(j, _)| *j != me as usize)
                 .filter_map(|(_, part)| part),
         );
-        Ok((outputs, all, positions))
+        let done = match calm {
+            true => CalmDone::Partly(done),
+            false => CalmDone::Nothing,
+        };
+        Ok((outputs, all, done))
     }
 
     /// On one memory, every island's segment `[s, e)` and its kicks at the
