@@ -51,6 +51,17 @@ fn run_with<E: Executor>(exec: E, partitions: usize, predict: bool) -> Outcome {
 
 /// The fixture with the scene settings `set` added.
 fn run_set<E: Executor>(exec: E, partitions: usize, set: &[String]) -> Outcome {
+    run_hooked(exec, partitions, set, &mut |_, _| {})
+}
+
+/// [`run_set`], calling `after` with the engine and the count of windows
+/// run after every window.
+fn run_hooked<E: Executor>(
+    exec: E,
+    partitions: usize,
+    set: &[String],
+    after: &mut dyn FnMut(&mut Engine<E>, u32),
+) -> Outcome {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/crumple.toml");
     let mut sets = vec![
         "size=300".into(),
@@ -77,6 +88,7 @@ fn run_set<E: Executor>(exec: E, partitions: usize, set: &[String]) -> Outcome {
             let p = &e.world.partitioning;
             spanning_at_peak = (active.keys().filter(|k| p.spans(k)).count(), active.len());
         }
+        after(&mut e, stats.len() as u32);
     }
     Outcome {
         hash: e.state_hash(),
@@ -391,42 +403,25 @@ fn partitions_placed_again_between_windows_keep_the_bits() {
     for (ranks, threads) in [(2, 1), (3, 1), (2, 2)] {
         let local = |_| Threads::new(threads).unwrap();
         let outcomes = in_process(ranks, local, |exec| {
-            let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/crumple.toml");
-            let sets = [
-                "size=300".into(),
-                "time.end=0.24".into(),
-                "time.steps_per_window=25".into(),
-                format!("partitions={partitions}"),
-            ];
-            let scene = load_scene(&path, &sets).unwrap();
-            let world = weft_par::build_world(&scene.world).unwrap();
-            let mut e = Engine::new(world, exec).unwrap();
-            let end = e.world.lattice.window_end_at_or_after(scene.end_time);
-            let mut stats = Vec::new();
-            let mut placed = 0u64;
-            while e.world.tick < end {
-                let mut s = e.step_window().unwrap();
-                (s.wall_seconds, s.stage_seconds) = (0.0, Default::default());
-                stats.push(s);
-                // Window w: partition p on rank (p * (w + 1) + w) mod R, or
-                // every third window all on rank w mod R.
-                let w = stats.len() as u32;
+            // Window w: partition p on rank (p * (w + 1) + w) mod R, or
+            // every third window all on rank w mod R.
+            let mut place = |e: &mut Engine<_>, w: u32| {
                 let home: Vec<u32> = (0..partitions as u32)
                     .map(|p| match w % 3 {
                         0 => w % ranks as u32,
                         _ => (p * (w + 1) + w) % ranks as u32,
                     })
                     .collect();
+                let before = e.placements;
                 e.place_partitions(home);
-                placed += 1;
-            }
-            assert!(e.placements >= placed, "{} placements", e.placements);
-            (e.state_hash(), stats)
+                assert_eq!(e.placements, before + 1, "placed after window {w}");
+            };
+            run_hooked(exec, partitions, &[], &mut place)
         });
-        for (rank, (hash, stats)) in outcomes.iter().enumerate() {
+        for (rank, o) in outcomes.iter().enumerate() {
             let label = format!("rank {rank} of {ranks} ({threads} threads), placed by hand");
-            assert_eq!(hash, FIXTURE_HASH, "{label}");
-            for (a, b) in stats.iter().zip(&reference.stats) {
+            assert_eq!(o.hash, FIXTURE_HASH, "{label}");
+            for (a, b) in o.stats.iter().zip(&reference.stats) {
                 assert_eq!(a, b, "{label}: statistics of window {}", b.window);
             }
         }
