@@ -1,14 +1,99 @@
-//! The `Threads` executor: the engine's tasks on a rayon pool.
+//! The `Threads` executor: the engine's tasks on a rayon pool, handed out
+//! so that no thread sleeps between the many short loops of a window.
+//!
+//! An internal tick of the twister at 10k vertices takes about 2 ms on two
+//! threads and holds several loops, each ending in a join. Rayon lets an
+//! idle worker, and a caller waiting for a stolen piece, sleep after a few
+//! microseconds, and waking a thread took about 100 µs on the development
+//! machine. So each loop is run by a *team* ([`Threads::team`]: the
+//! caller and one helper job per other worker take indices from one
+//! counter; the caller spins at the end, running whatever the pool has),
+//! and between loops the other workers are *kept awake*
+//! ([`Threads::keep_awake`]). Which thread runs a task never changes its
+//! result, so none of this changes a bit.
 
-use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
 use weft_sim::Executor;
 
-/// Runs the engine's tasks on its own pool of `n` threads (work stealing:
-/// chunks and map items are taken by whichever thread is idle). Clones share
+/// How long a kept-awake worker looks for work before it lets rayon put it
+/// to sleep (see [`Threads::keep_awake`]): longer than the gaps between
+/// the loops of an internal tick, short enough that a serial stretch (a
+/// pass's start, the output) soon gets its core back.
+const STAY_AWAKE: Duration = Duration::from_micros(1000);
+
+/// How long a waiting thread spins before each further look for work
+/// yields its core to the OS instead (when there are more threads than
+/// cores, as in the test suite, the one it waits for may need it).
+const SPIN_BEFORE_YIELD: Duration = Duration::from_micros(50);
+
+/// Waits by spinning, then by yielding the core: see [`SPIN_BEFORE_YIELD`].
+struct Backoff {
+    since: Instant,
+    spins: u32,
+}
+
+impl Backoff {
+    fn new() -> Self {
+        Self {
+            since: Instant::now(),
+            spins: 0,
+        }
+    }
+
+    /// Found nothing to do: wait a little.
+    fn idle(&mut self) {
+        self.spins = self.spins.wrapping_add(1);
+        // The clock is read once every 64 turns.
+        if self.spins % 64 == 0 && self.since.elapsed() > SPIN_BEFORE_YIELD {
+            std::thread::yield_now();
+        } else {
+            std::hint::spin_loop();
+        }
+    }
+
+    /// Found work: start over.
+    fn busy(&mut self) {
+        *self = Self::new();
+    }
+}
+
+/// Takes the item out of a slot each index takes once (a lock never held
+/// while a task runs, so never poisoned; if it were, the item is intact).
+fn take<T>(slot: &std::sync::Mutex<Option<T>>) -> Option<T> {
+    slot.lock().unwrap_or_else(|e| e.into_inner()).take()
+}
+
+thread_local! {
+    /// How many of the executor's tasks this thread is inside (a task that
+    /// waits for a nested loop's stolen piece is still inside it).
+    static IN_TASK: std::cell::Cell<u32> = const { std::cell::Cell::new(0) };
+}
+
+/// Runs `f` counted as inside one of the executor's tasks.
+fn as_task<R>(f: impl FnOnce() -> R) -> R {
+    struct Leave;
+    impl Drop for Leave {
+        fn drop(&mut self) {
+            IN_TASK.with(|d| d.set(d.get() - 1));
+        }
+    }
+    IN_TASK.with(|d| d.set(d.get() + 1));
+    let _leave = Leave;
+    f()
+}
+
+/// Runs the engine's tasks on its own pool of `n` threads (chunks, map
+/// items and join sides are taken in order by whichever thread comes free;
+/// nested loops are helped by threads waiting for their own). Clones share
 /// the pool.
 #[derive(Clone)]
 pub struct Threads {
-    pool: std::sync::Arc<rayon::ThreadPool>,
+    pool: Arc<rayon::ThreadPool>,
+    /// Keep-awake jobs handed out and not yet ended.
+    awake: Arc<AtomicUsize>,
 }
 
 impl Threads {
@@ -19,8 +104,48 @@ impl Threads {
             .thread_name(|i| format!("weft-{i}"))
             .build()?;
         Ok(Self {
-            pool: std::sync::Arc::new(pool),
+            pool: Arc::new(pool),
+            awake: Arc::default(),
         })
+    }
+
+    /// Before a loop that is not inside another: makes sure each other
+    /// worker of the pool runs a keep-awake job, which steals and runs the
+    /// pool's work as it comes and ends only after [`STAY_AWAKE`] without
+    /// any. The job goes to every worker (`spawn_broadcast`); it ends at
+    /// once on the calling thread, and on a thread inside one of the
+    /// executor's tasks (one waiting there for a stolen piece of a nested
+    /// loop must not stay under a job that spins on).
+    fn keep_awake(&self) {
+        let threads = self.threads();
+        if threads < 2 || IN_TASK.with(|d| d.get()) > 0 {
+            return;
+        }
+        if self.awake.load(Ordering::Acquire) > 0 {
+            return;
+        }
+        let caller = rayon::current_thread_index();
+        // The calling thread's copy ends at once and is not counted: it
+        // runs only when the caller next looks for work, maybe much later.
+        self.awake
+            .store(threads - usize::from(caller.is_some()), Ordering::Release);
+        let awake = self.awake.clone();
+        self.pool.spawn_broadcast(move |ctx| {
+            if Some(ctx.index()) == caller {
+                return;
+            }
+            if IN_TASK.with(|d| d.get()) == 0 {
+                let mut wait = Backoff::new();
+                loop {
+                    match rayon::yield_now() {
+                        Some(rayon::Yield::Executed) => wait.busy(),
+                        _ if wait.since.elapsed() > STAY_AWAKE => break,
+                        _ => wait.idle(),
+                    }
+                }
+            }
+            awake.fetch_sub(1, Ordering::AcqRel);
+        });
     }
 
     /// Runs `f` on one of the pool's threads. Run the whole simulation loop
@@ -29,6 +154,55 @@ impl Threads {
     /// competes with workers spinning for work between parallel stages.
     pub fn install<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
         self.pool.install(f)
+    }
+
+    /// Runs `task(i)` for every `i` in `0..n` once, on the pool: the
+    /// calling thread and one helper job per other worker take indices in
+    /// order from one counter; the caller, its own share done, waits for
+    /// the indices taken elsewhere by running whatever work the pool has
+    /// (a nested loop's pieces among it) and spinning ([`Backoff`]),
+    /// instead of sleeping in rayon's wait. A panic in a task ends the
+    /// wait and reaches the caller through the scope.
+    fn team(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
+        use std::sync::atomic::AtomicBool;
+        self.keep_awake();
+        let next = AtomicUsize::new(0);
+        let done = AtomicUsize::new(0);
+        let panicked = AtomicBool::new(false);
+        let work = || {
+            as_task(|| loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                if i >= n {
+                    break;
+                }
+                struct Watch<'a>(&'a AtomicBool);
+                impl Drop for Watch<'_> {
+                    fn drop(&mut self) {
+                        if std::thread::panicking() {
+                            self.0.store(true, Ordering::Release);
+                        }
+                    }
+                }
+                let _watch = Watch(&panicked);
+                task(i);
+                done.fetch_add(1, Ordering::Release);
+            })
+        };
+        self.pool.install(|| {
+            rayon::scope(|s| {
+                for _ in 1..self.threads().min(n) {
+                    s.spawn(|_| work());
+                }
+                work();
+                let mut wait = Backoff::new();
+                while done.load(Ordering::Acquire) < n && !panicked.load(Ordering::Acquire) {
+                    match rayon::yield_now() {
+                        Some(rayon::Yield::Executed) => wait.busy(),
+                        _ => wait.idle(),
+                    }
+                }
+            })
+        });
     }
 
     /// The number of threads in the pool.
@@ -54,13 +228,13 @@ impl Executor for Threads {
             // One chunk (or none): no one to share it with.
             return weft_sim::Serial.for_each_chunk(data, bounds, task);
         }
-        let chunks = weft_sim::executor::split_chunks(data, bounds);
-        // Every chunk its own task (`with_max_len(1)`): rayon otherwise
-        // splits a loop into about as many pieces as threads and runs each
-        // piece in order unless it is stolen, so a thread that comes free
-        // late (a join's other side done) found nothing left to take.
-        self.pool.install(|| {
-            (chunks.into_par_iter().with_max_len(1)).for_each(|(k, chunk)| task(k, chunk));
+        let chunks: Vec<_> = (weft_sim::executor::split_chunks(data, bounds).into_iter())
+            .map(|chunk| std::sync::Mutex::new(Some(chunk)))
+            .collect();
+        self.team(chunks.len(), &|i| {
+            if let Some((k, chunk)) = take(&chunks[i]) {
+                task(k, chunk);
+            }
         });
     }
 
@@ -68,10 +242,26 @@ impl Executor for Threads {
         if n <= 1 {
             return (0..n).map(f).collect();
         }
-        // `collect` on an indexed parallel iterator keeps index order; each
-        // item its own task, as above.
-        self.pool
-            .install(|| (0..n).into_par_iter().with_max_len(1).map(f).collect())
+        // Items are taken in runs of `grain` (one item each for short
+        // lists, whose items may cost very unequally; maps over every
+        // vertex or stencil would otherwise pay a shared counter and a lock
+        // per item).
+        let grain = (n / (64 * self.threads())).max(1);
+        let mut out: Vec<Option<R>> = (0..n).map(|_| None).collect();
+        let runs: Vec<_> = (out.chunks_mut(grain).enumerate())
+            .map(|run| std::sync::Mutex::new(Some(run)))
+            .collect();
+        self.team(runs.len(), &|k| {
+            if let Some((r, run)) = take(&runs[k]) {
+                for (j, slot) in run.iter_mut().enumerate() {
+                    *slot = Some(f(r * grain + j));
+                }
+            }
+        });
+        drop(runs);
+        (out.into_iter())
+            .map(|item| item.expect("every item mapped"))
+            .collect()
     }
 
     fn name(&self) -> String {
@@ -79,7 +269,13 @@ impl Executor for Threads {
     }
 
     fn join(&self, a: &mut (dyn FnMut() + Send), b: &mut (dyn FnMut() + Send)) {
-        self.pool.install(|| rayon::join(a, b));
+        type Side<'a> = std::sync::Mutex<Option<&'a mut (dyn FnMut() + Send)>>;
+        let sides: [Side<'_>; 2] = [Side::new(Some(a)), Side::new(Some(b))];
+        self.team(2, &|i| {
+            if let Some(side) = take(&sides[i]) {
+                side();
+            }
+        });
     }
 
     fn threads_per_rank(&self) -> usize {
@@ -137,5 +333,54 @@ mod tests {
             order.lock().unwrap().push('b')
         });
         assert_eq!(*order.lock().unwrap(), ['a', 'b']);
+    }
+
+    #[test]
+    fn nested_loops_run_every_index_once() {
+        // Loops inside loops and join sides, with very unequal items: each
+        // inner index runs exactly once, the results in index order.
+        use std::sync::atomic::AtomicU64;
+        for threads in [2, 3] {
+            let t = Threads::new(threads).unwrap();
+            let runs = AtomicU64::new(0);
+            let outer = t.map(40, &|i| {
+                let inner = t.map(i % 7 * 50, &|j| {
+                    runs.fetch_add(1, Ordering::Relaxed);
+                    (0..(j % 13) * 100).fold(j as u64, |a, k| a.wrapping_mul(31) ^ k as u64)
+                });
+                let mut sides = (0u64, 0u64);
+                t.join(
+                    &mut || sides.0 = inner.iter().fold(0, |a, x| a ^ x),
+                    &mut || sides.1 = t.map(i, &|k| k as u64).iter().sum(),
+                );
+                sides
+            });
+            let expect: u64 = (0..40).map(|i| (i % 7 * 50) as u64).sum();
+            assert_eq!(runs.load(Ordering::Relaxed), expect);
+            for (i, &(_, side)) in outer.iter().enumerate() {
+                assert_eq!(side, (0..i as u64).sum::<u64>());
+            }
+        }
+    }
+
+    #[test]
+    fn a_panicking_task_reaches_the_caller_and_nothing_waits_on() {
+        let t = Threads::new(2).unwrap();
+        let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            let mut data = vec![0u8; 64];
+            let bounds: Vec<usize> = (0..=64).step_by(4).collect();
+            t.for_each_chunk(&mut data, &bounds, &|k, _| assert!(k != 5, "chunk 5"));
+        }));
+        assert!(caught.is_err());
+        let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            t.map(1000, &|i| assert!(i != 999, "item"))
+        }));
+        assert!(caught.is_err());
+        let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            t.join(&mut || {}, &mut || panic!("side b"))
+        }));
+        assert!(caught.is_err());
+        // The pool still works afterwards.
+        assert_eq!(t.map(10, &|i| i).iter().sum::<usize>(), 45);
     }
 }
