@@ -91,9 +91,37 @@ fn as_task<R>(f: impl FnOnce() -> R) -> R {
 /// the pool.
 #[derive(Clone)]
 pub struct Threads {
-    pool: Arc<rayon::ThreadPool>,
+    pool: Arc<Pool>,
     /// Keep-awake jobs handed out and not yet ended.
     awake: Arc<AtomicUsize>,
+}
+
+/// Threads in every pool of this process now (simulated ranks each have
+/// their own).
+static THREADS_IN_POOLS: AtomicUsize = AtomicUsize::new(0);
+
+/// A rayon pool, counted in [`THREADS_IN_POOLS`] while it lives.
+struct Pool(rayon::ThreadPool);
+
+impl std::ops::Deref for Pool {
+    type Target = rayon::ThreadPool;
+    fn deref(&self) -> &rayon::ThreadPool {
+        &self.0
+    }
+}
+
+impl Drop for Pool {
+    fn drop(&mut self) {
+        THREADS_IN_POOLS.fetch_sub(self.0.current_num_threads(), Ordering::Relaxed);
+    }
+}
+
+/// Whether this process's pools have more threads than the machine has
+/// cores: a kept-awake worker would then take a core from one with work.
+fn oversubscribed() -> bool {
+    static CORES: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    let cores = *CORES.get_or_init(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    THREADS_IN_POOLS.load(Ordering::Relaxed) > cores
 }
 
 impl Threads {
@@ -104,7 +132,10 @@ impl Threads {
             .thread_name(|i| format!("weft-{i}"))
             .build()?;
         Ok(Self {
-            pool: Arc::new(pool),
+            pool: Arc::new({
+                THREADS_IN_POOLS.fetch_add(pool.current_num_threads(), Ordering::Relaxed);
+                Pool(pool)
+            }),
             awake: Arc::default(),
         })
     }
@@ -115,10 +146,13 @@ impl Threads {
     /// any. The job goes to every worker (`spawn_broadcast`); it ends at
     /// once on the calling thread, and on a thread inside one of the
     /// executor's tasks (one waiting there for a stolen piece of a nested
-    /// loop must not stay under a job that spins on).
+    /// loop must not stay under a job that spins on). Not done when this
+    /// process's pools hold more threads than there are cores (simulated
+    /// ranks of several threads each): a spinning worker would then take a
+    /// core from a thread with work.
     fn keep_awake(&self) {
         let threads = self.threads();
-        if threads < 2 || IN_TASK.with(|d| d.get()) > 0 {
+        if threads < 2 || IN_TASK.with(|d| d.get()) > 0 || oversubscribed() {
             return;
         }
         if self.awake.load(Ordering::Acquire) > 0 {
