@@ -158,14 +158,18 @@ impl Threads {
         if self.awake.load(Ordering::Acquire) > 0 {
             return;
         }
-        let caller = rayon::current_thread_index();
+        // Only for a caller on the pool (the simulation loop runs there,
+        // `install`): a job injected from outside could otherwise run
+        // inside a keep-awake job, which would stay counted meanwhile.
+        let Some(caller) = rayon::current_thread_index() else {
+            return;
+        };
         // The calling thread's copy ends at once and is not counted: it
         // runs only when the caller next looks for work, maybe much later.
-        self.awake
-            .store(threads - usize::from(caller.is_some()), Ordering::Release);
+        self.awake.store(threads - 1, Ordering::Release);
         let awake = self.awake.clone();
         self.pool.spawn_broadcast(move |ctx| {
-            if Some(ctx.index()) == caller {
+            if ctx.index() == caller {
                 return;
             }
             if IN_TASK.with(|d| d.get()) == 0 {
