@@ -33,6 +33,7 @@ const SPIN_BEFORE_YIELD: Duration = Duration::from_micros(50);
 struct Backoff {
     since: Instant,
     spins: u32,
+    yielding: bool,
 }
 
 impl Backoff {
@@ -40,18 +41,20 @@ impl Backoff {
         Self {
             since: Instant::now(),
             spins: 0,
+            yielding: false,
         }
     }
 
     /// Found nothing to do: wait a little.
     fn idle(&mut self) {
+        if self.yielding {
+            std::thread::yield_now();
+            return;
+        }
         self.spins = self.spins.wrapping_add(1);
         // The clock is read once every 64 turns.
-        if self.spins % 64 == 0 && self.since.elapsed() > SPIN_BEFORE_YIELD {
-            std::thread::yield_now();
-        } else {
-            std::hint::spin_loop();
-        }
+        self.yielding = self.spins % 64 == 0 && self.since.elapsed() > SPIN_BEFORE_YIELD;
+        std::hint::spin_loop();
     }
 
     /// Found work: start over.
