@@ -5,11 +5,11 @@
 //! threads and holds several loops, each ending in a join. Rayon lets an
 //! idle worker, and a caller waiting for a stolen piece, sleep after a few
 //! microseconds, and waking a thread took about 100 µs on the development
-//! machine. So each loop is run by a *team* ([`Threads::team`]: the
+//! machine. So each loop is run by a *team* (`Threads::team`: the
 //! caller and one helper job per other worker take indices from one
 //! counter; the caller spins at the end, running whatever the pool has),
 //! and between loops the other workers are *kept awake*
-//! ([`Threads::keep_awake`]). Which thread runs a task never changes its
+//! (`Threads::keep_awake`). Which thread runs a task never changes its
 //! result, so none of this changes a bit.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
