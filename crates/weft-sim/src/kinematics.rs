@@ -136,22 +136,7 @@ impl Motion {
         if profile.is_empty() || t <= 0.0 {
             return 0.0;
         }
-        let omega_at = |s: f64| -> f64 {
-            if s <= profile[0].0 {
-                return profile[0].1;
-            }
-            for w in profile.windows(2) {
-                let ((t0, w0), (t1, w1)) = (w[0], w[1]);
-                if s <= t1 {
-                    return if t1 > t0 {
-                        w0 + (w1 - w0) * (s - t0) / (t1 - t0)
-                    } else {
-                        w1
-                    };
-                }
-            }
-            profile[profile.len() - 1].1
-        };
+        let omega_at = |s: f64| Self::omega_at(profile, s);
         // Integrate piecewise: breakpoints of omega inside (0, t), trapezoids
         // are exact. The knots are walked in place (no list is made: every
         // kinematic vertex of a rotating script asks this at every internal
@@ -166,6 +151,25 @@ impl Motion {
                 trapezoid
             })
             .sum()
+    }
+
+    /// The angular speed of a (non-empty) piecewise-linear `profile` at
+    /// time `s`: the first knot's before it, the last one's after it.
+    fn omega_at(profile: &[(f64, f64)], s: f64) -> f64 {
+        if s <= profile[0].0 {
+            return profile[0].1;
+        }
+        for w in profile.windows(2) {
+            let ((t0, w0), (t1, w1)) = (w[0], w[1]);
+            if s <= t1 {
+                return if t1 > t0 {
+                    w0 + (w1 - w0) * (s - t0) / (t1 - t0)
+                } else {
+                    w1
+                };
+            }
+        }
+        profile[profile.len() - 1].1
     }
 
     /// Position at time `t` of vertex `k` of a script, which is at `x0` at
@@ -237,27 +241,12 @@ mod tests {
 
     #[test]
     fn angle_walked_in_place_has_the_bits_of_the_listed_knots() {
-        // The formula as it was, with the knots in a list.
+        // The sum as it was, over the knots in a list.
         let listed = |profile: &[(f64, f64)], t: f64| -> f64 {
             if profile.is_empty() || t <= 0.0 {
                 return 0.0;
             }
-            let omega_at = |s: f64| -> f64 {
-                if s <= profile[0].0 {
-                    return profile[0].1;
-                }
-                for w in profile.windows(2) {
-                    let ((t0, w0), (t1, w1)) = (w[0], w[1]);
-                    if s <= t1 {
-                        return if t1 > t0 {
-                            w0 + (w1 - w0) * (s - t0) / (t1 - t0)
-                        } else {
-                            w1
-                        };
-                    }
-                }
-                profile[profile.len() - 1].1
-            };
+            let omega_at = |s: f64| Motion::omega_at(profile, s);
             let mut knots: Vec<f64> = vec![0.0];
             knots.extend(profile.iter().map(|p| p.0).filter(|&s| s > 0.0 && s < t));
             knots.push(t);
@@ -265,13 +254,7 @@ mod tests {
                 .map(|k| 0.5 * (omega_at(k[0]) + omega_at(k[1])) * (k[1] - k[0]))
                 .sum()
         };
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = crate::uniform_numbers(0x2545_f491_4f6c_dd1d);
         for _ in 0..2000 {
             let knots = (next() * 6.0) as usize;
             let mut at = -0.5 + next();

@@ -447,13 +447,7 @@ mod tests {
     /// more than its limit, and a vertex in one stencil is left alone.
     #[test]
     fn friction_clamp_scales_whole_stencils_and_respects_each_limit() {
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut rnd = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::uniform_numbers(0x9e37_79b9_7f4a_7c15);
         let n = 6;
         let w = [1.0, 2.0, 0.5, 0.0, 1.5, 3.0]; // vertex 3 is kinematic
         let mut clamped = 0;

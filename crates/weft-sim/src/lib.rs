@@ -49,6 +49,18 @@ pub mod trace;
 pub mod trajectory;
 pub mod world;
 
+/// Numbers for unit tests: uniform in `[0, 1)` from a xorshift64 seeded
+/// with `seed` (the same sequence on every machine).
+#[cfg(test)]
+pub(crate) fn uniform_numbers(mut seed: u64) -> impl FnMut() -> f64 {
+    move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
 pub use config::{ContactConfig, LimitsConfig, TimeConfig};
 pub use diagnostics::{WindowStats, WindowTiming};
 pub use engine::{Engine, NarrowLoad, RunTotals};
