@@ -130,10 +130,9 @@ impl MpiTransport {
     /// polling after that counts as waiting.
     fn complete_while<'a, D: ?Sized, S: Scope<'a>>(
         &self,
-        request: Request<'a, D, S>,
+        mut request: Request<'a, D, S>,
         work: &mut dyn FnMut() -> bool,
     ) -> Status {
-        let mut request = request;
         loop {
             match self.test(request) {
                 Ok(status) => return status,
@@ -320,7 +319,7 @@ impl Transport for MpiTransport {
         // completed, also when a rank then reports a part too large, so no
         // request is left behind.
         let mut overlap = super::transport::pieces(overlap);
-        let (counts, received) = mpi::request::scope(|scope| {
+        let (counts, mut received) = mpi::request::scope(|scope| {
             let mut sent = Vec::new();
             for (j, part) in parts.iter().enumerate() {
                 if too_large.is_none() && j != me && !part.is_empty() {
@@ -383,7 +382,6 @@ impl Transport for MpiTransport {
         }
         let heads: Vec<Vec<u64>> = recv.chunks_exact(words).map(|c| c[2..].to_vec()).collect();
         let lens: Vec<usize> = recv.chunks_exact(words).map(|c| c[0] as usize).collect();
-        let mut received = received;
         for (j, count) in counts {
             if usize::try_from(count).ok() != Some(lens[j]) {
                 return Err(

@@ -325,20 +325,19 @@ pub(super) fn fold_listed<E: Executor>(
     (listed, runs): (&[Vec<u16>], &[usize]),
     (acc, v_new): (&mut [DVec3], &mut [DVec3]),
 ) -> Vec<Option<usize>> {
-    let (h, tsec) = (w.lattice.h_el(), w.lattice.seconds(t));
-    let tick = TickConsts { out, xt, tsec, h };
     let mut fused = FoldRun::runs(acc, v_new, runs);
     exec.for_each_item(&mut fused, &|k, r| {
-        let js = listed[k].iter().map(|&j| usize::from(j));
-        r.fold(w, &tick, k * VERTEX_RUN, &[], js, false);
+        let run = (&mut *r.acc, &mut *r.v_new);
+        r.bad = fold_run_listed(w, (out, xt), t, (k * VERTEX_RUN, &listed[k]), run);
     });
     fused.iter().map(|r| r.bad).collect()
 }
 
 /// The fused per-vertex pass at tick `t` over the vertices at the offsets
 /// `listed` of the run of vertices from `start` (`acc` and `v_new` that
-/// run's), that no island kicks: over ranks, a run's calm folds. Returns
-/// its first listed vertex that blows up.
+/// run's), that no island kicks: a run's calm folds (each run's, through
+/// [`fold_listed`], on one memory; over ranks, one run per piece while the
+/// rank waits). Returns its first listed vertex that blows up.
 pub(super) fn fold_run_listed(
     w: &World,
     (out, xt): (&[DVec3], &[DVec3]),
