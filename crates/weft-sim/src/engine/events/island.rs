@@ -430,8 +430,7 @@ impl Island {
         let mut firing: Vec<u32> = Vec::with_capacity(self.max_depth as usize);
         let mut from = s;
         while from < e {
-            let dormancy = &self.dormancy;
-            let reach = dormancy.max_reach();
+            let reach = self.dormancy.max_reach();
             let t = (1..=reach)
                 .map(|l| at_or_after(from, l))
                 .min()
@@ -439,7 +438,7 @@ impl Island {
             // Stencils due to wake at or before that tick may raise the
             // reach (and add firing layers at it): wake them and look again
             // from their tick.
-            if let Some(due) = dormancy.next_due().filter(|&due| due <= t && due < e) {
+            if let Some(due) = (self.dormancy.next_due()).filter(|&due| due <= t && due < e) {
                 self.dormancy.wake_due(due.max(from));
                 from = due.max(from);
                 continue;
