@@ -24,6 +24,12 @@ impl<E: Executor> Engine<E> {
         // (holder, reader) → vertices, ascending; only pairs with this rank.
         let mut travel: std::collections::BTreeMap<(usize, usize), Vec<u32>> = Default::default();
         for (r, list) in reads.iter_mut().enumerate() {
+            // Another rank's reads matter here only where this rank holds
+            // them: dropped before the sort, which every rank would
+            // otherwise repeat for every rank's list.
+            if r != me {
+                list.retain(|&v| holders[v as usize] as usize == me);
+            }
             list.sort_unstable();
             list.dedup();
             for &v in list.iter() {
