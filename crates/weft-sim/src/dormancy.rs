@@ -15,7 +15,7 @@
 //!   reads it.
 //!
 //! A dozing or asleep stencil wakes (reach back to its depth) when its tick
-//! comes (a min-heap of wake ticks) or when one of its vertices breaks its
+//! comes (a queue of wake ticks, `WakeQueue`) or when one of its vertices breaks its
 //! certificate's assumption (a vertex → stencils index), whichever is first.
 //!
 //! ## Speed caps
