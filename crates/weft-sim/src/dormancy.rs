@@ -58,7 +58,7 @@ pub const BREAKPOINTS_PER_WAKE: u32 = 1024;
 #[derive(Clone, Debug, Default)]
 pub struct Dormancy {
     /// Per stencil: what its wake-ups and dozes read and write, in one
-    /// record (a wake due from the queue touches one cache line, not four).
+    /// record (a wake due from the queue reads one record, not four arrays).
     stencils: Vec<Reach>,
     /// Wake ticks, counted from `base`; an entry whose stencil is awake, or
     /// dozes until another tick, is stale and ignored.
@@ -164,7 +164,7 @@ impl Dormancy {
         while let Some((at, due)) = self.due.take_through(through) {
             for &(_, a) in &due {
                 let s = &self.stencils[a as usize];
-                if s.reach < s.depth && s.until == at {
+                if s.reach < s.depth && s.until == self.base + at as Tick {
                     self.wake(a);
                 }
             }
@@ -252,26 +252,38 @@ impl Dormancy {
         let i = a as usize;
         debug_assert!(reach < self.stencils[i].depth);
         debug_assert!(until > self.base);
-        // Counted from the base; a wake tick 2^32 - 1 or more ticks after it
-        // wakes it earlier (always safe).
+        // A wake tick more than 2^32 ticks after the base wakes it there
+        // instead (earlier is always safe).
         let until = if until == Tick::MAX {
-            Reach::FOREVER
+            until
         } else {
-            (until - self.base).min(Reach::FOREVER as Tick - 1) as u32
+            until.min(self.base + u32::MAX as Tick)
         };
         let s = &self.stencils[i];
         if reach == s.reach && until <= s.until {
             return; // what it certifies holds already, at least as long
         }
-        self.set_reach(a, reach);
-        self.stencils[i].until = until;
-        if until != Reach::FOREVER {
-            self.due.push(until, a);
+        if until != Tick::MAX {
+            let at = (until - self.base) as u32;
+            if at <= self.due.last {
+                // Only 2^32 ticks or more after the base (the clamp): a wake
+                // tick the queue has passed, which it cannot take. It would
+                // wake at the next look for due stencils, before any batch
+                // reads it: it wakes now instead.
+                self.wake(a);
+                return;
+            }
+            self.set_reach(a, reach);
+            self.stencils[i].until = until;
+            self.due.push(at, a);
+        } else {
+            self.set_reach(a, reach);
+            self.stencils[i].until = until;
         }
     }
 }
 
-/// One stencil's reach and what keeps it.
+/// One stencil's reach and what keeps it (24 bytes).
 #[derive(Clone, Copy, Debug)]
 struct Reach {
     depth: u32,
@@ -279,19 +291,17 @@ struct Reach {
     reach: u32,
     /// Its place in `Dormancy::by_reach[reach]`.
     slot: u32,
-    /// Below its depth: the tick its reach is restored, counted from the
-    /// base ([`Reach::FOREVER`]: when a vertex wakes it).
-    until: u32,
-}
-
-impl Reach {
-    const FOREVER: u32 = u32::MAX;
+    /// Below its depth: the tick its reach is restored (`Tick::MAX`: when
+    /// a vertex wakes it).
+    until: Tick,
 }
 
 /// The wake ticks of the dozing stencils: a monotone priority queue (a
 /// radix heap, Ahuja, Mehlhorn, Orlin and Tarjan 1990). Every tick pushed
 /// is later than every tick taken (a stencil dozes until after the batch
-/// that certified it, and batches go forward), which lets entries wait in
+/// that certified it, and batches go forward; past the clamp of wake ticks
+/// 2^32 ticks after the base, `Dormancy::doze` wakes it instead of pushing
+/// a tick already passed), which lets entries wait in
 /// buckets by their highest bit that differs from the last tick taken:
 /// pushing is one append, and each entry is moved to a lower bucket a few
 /// times before it is taken. A binary heap of one word per entry cost a
@@ -469,6 +479,38 @@ mod tests {
         d.observe(3, DVec3::NAN);
         assert_eq!(sorted(&d), [0, 1]);
         assert_eq!(d.cap(3), f64::INFINITY);
+    }
+
+    /// Past 2^32 ticks after the base, wake ticks are clamped there: a
+    /// stencil dozing until a later tick is queued at the clamp, woken when
+    /// the batches pass it, and one dozing after that (a wake tick the
+    /// queue has passed) wakes at once, as the binary heap before woke it
+    /// at its next look, before any batch read it.
+    #[test]
+    fn wake_ticks_past_the_clamp_wake_no_later_than_the_clamp() {
+        let stencils = [[0, 1, 2, 3], [4, 5, 6, 7]];
+        let mut d = Dormancy::default();
+        d.reset(&stencils, &[3, 3], 8, 10);
+        let clamp = 10 + u32::MAX as Tick;
+        d.doze(0, 0, clamp + 100);
+        d.doze(1, 1, 50);
+        assert_eq!(d.next_due(), Some(50));
+        d.wake_due(50);
+        assert_eq!((d.reach(0), d.reach(1)), (0, 3));
+        assert_eq!(d.next_due(), Some(clamp));
+        d.wake_due(clamp - 1);
+        assert_eq!(d.reach(0), 0);
+        d.wake_due(clamp + 5);
+        assert_eq!(d.reach(0), 3, "woken at the clamp");
+        // A batch past the clamp certifies both again: the clamped wake
+        // tick is behind the queue, so they stay awake; one that never
+        // wakes on time dozes.
+        d.doze(0, 0, clamp + 1_000);
+        d.doze(1, 2, clamp + 7);
+        assert_eq!((d.reach(0), d.reach(1)), (3, 3));
+        assert_eq!(d.next_due(), None);
+        d.doze(0, 0, Tick::MAX);
+        assert_eq!(d.reach(0), 0);
     }
 
     /// The radix queue against a sorted list: random pushes of later ticks

@@ -438,7 +438,7 @@ impl Island {
             // Stencils due to wake at or before that tick may raise the
             // reach (and add firing layers at it): wake them and look again
             // from their tick.
-            if let Some(due) = (self.dormancy.next_due()).filter(|&due| due <= t && due < e) {
+            if let Some(due) = self.dormancy.next_due().filter(|&due| due <= t && due < e) {
                 self.dormancy.wake_due(due.max(from));
                 from = due.max(from);
                 continue;
