@@ -15,8 +15,9 @@
 //!   reads it.
 //!
 //! A dozing or asleep stencil wakes (reach back to its depth) when its tick
-//! comes (a queue of wake ticks, `WakeQueue`) or when one of its vertices breaks its
-//! certificate's assumption (a vertex → stencils index), whichever is first.
+//! comes (a queue of wake ticks, `WakeQueue`) or when one of its vertices
+//! breaks its certificate's assumption (a vertex → stencils index),
+//! whichever is first.
 //!
 //! ## Speed caps
 //!
@@ -273,13 +274,10 @@ impl Dormancy {
                 self.wake(a);
                 return;
             }
-            self.set_reach(a, reach);
-            self.stencils[i].until = until;
             self.due.push(at, a);
-        } else {
-            self.set_reach(a, reach);
-            self.stencils[i].until = until;
         }
+        self.set_reach(a, reach);
+        self.stencils[i].until = until;
     }
 }
 
