@@ -56,6 +56,8 @@ enum Verdict {
 /// `x` was therefore at least `d0 - move_a - move_b` apart. The subtracted
 /// slack covers the rounding of `d0` and of the displacement norms (a few ulps
 /// of the coordinates, bounded generously by `2^-40 (1 + max |coordinate|)`).
+/// A position that is not finite gives a displacement that is not, and the
+/// bound is then NaN or `-inf` (never at least a thickness).
 pub(super) fn distance_lower_bound(
     kind: StencilKind,
     d0: f64,
@@ -63,8 +65,16 @@ pub(super) fn distance_lower_bound(
     x: &[DVec3; 4],
 ) -> f64 {
     let split = split_of(kind);
+    // (`f64::max` would drop a NaN displacement: it must stay)
+    let largest = |m: f64, d: f64| {
+        if m.is_nan() || d.is_nan() {
+            f64::NAN
+        } else {
+            m.max(d)
+        }
+    };
     let moved =
-        |r: std::ops::Range<usize>| r.map(|j| (x[j] - x0[j]).length()).fold(0.0f64, f64::max);
+        |r: std::ops::Range<usize>| r.map(|j| (x[j] - x0[j]).length()).fold(0.0f64, largest);
     let scale = x
         .iter()
         .chain(x0)
@@ -767,6 +777,34 @@ mod tests {
                 if (0.01..=1.0).contains(&v.length_squared()) {
                     return v.normalize();
                 }
+            }
+        }
+    }
+
+    /// A non-finite position never gives a finite lower bound (which
+    /// could certify a stencil asleep; `f64::max` used to drop a NaN
+    /// displacement), and a certificate whose length in ticks is near the
+    /// end of the clock, where `Tick::MAX - t` is rounded as a float, ends
+    /// after its tick without overflowing.
+    #[test]
+    fn bounds_and_certificates_at_the_edges_of_the_numbers() {
+        let x0 = [DVec3::ZERO, DVec3::X, DVec3::Y, DVec3::Z];
+        for bad in [f64::NAN, f64::INFINITY] {
+            for j in 0..4 {
+                let mut x = x0;
+                x[j].y = bad;
+                for kind in [StencilKind::VertexFace, StencilKind::EdgeEdge] {
+                    let lower = distance_lower_bound(kind, 1.0, &x0, &x);
+                    assert!(!(lower >= 0.0), "{kind:?}, vertex {j}: {lower}");
+                }
+            }
+        }
+        let caps = [1.0, 0.0, 0.0, 0.0];
+        for t in [1, 1500, 1 << 20] {
+            for k in 0..4096u64 {
+                let lower = 1.844_674_407_370_95e19 + (k * 1024) as f64;
+                let (at, room) = sleep(StencilKind::VertexFace, lower, 0.0, &x0, &caps, 1.0, t);
+                assert!(room > 0.0 && at > t, "{t}, {k}: {at}");
             }
         }
     }
