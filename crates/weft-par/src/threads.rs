@@ -61,6 +61,15 @@ impl Backoff {
     fn busy(&mut self) {
         *self = Self::new();
     }
+
+    /// Runs one piece of the pool's work if there is any (and starts over),
+    /// else waits a little.
+    fn look(&mut self) {
+        match rayon::yield_now() {
+            Some(rayon::Yield::Executed) => self.busy(),
+            _ => self.idle(),
+        }
+    }
 }
 
 /// Takes the item out of a slot each index takes once (a lock never held
@@ -177,12 +186,8 @@ impl Threads {
             }
             if IN_TASK.with(|d| d.get()) == 0 {
                 let mut wait = Backoff::new();
-                loop {
-                    match rayon::yield_now() {
-                        Some(rayon::Yield::Executed) => wait.busy(),
-                        _ if wait.since.elapsed() > STAY_AWAKE => break,
-                        _ => wait.idle(),
-                    }
+                while wait.since.elapsed() <= STAY_AWAKE {
+                    wait.look();
                 }
             }
             awake.fetch_sub(1, Ordering::AcqRel);
@@ -237,10 +242,7 @@ impl Threads {
                 work();
                 let mut wait = Backoff::new();
                 while done.load(Ordering::Acquire) < n && !panicked.load(Ordering::Acquire) {
-                    match rayon::yield_now() {
-                        Some(rayon::Yield::Executed) => wait.busy(),
-                        _ => wait.idle(),
-                    }
+                    wait.look();
                 }
             })
         });
