@@ -341,11 +341,10 @@ impl WakeQueue {
         (32 - (tick ^ self.last).leading_zeros()) as usize
     }
 
+    /// Queues `stencil` at `tick` (after [`WakeQueue::clear`], which
+    /// `Dormancy::reset` calls).
     fn push(&mut self, tick: u32, stencil: u32) {
         debug_assert!(tick > self.last, "wake ticks go forward");
-        if self.buckets.is_empty() {
-            self.clear();
-        }
         let b = self.bucket(tick);
         self.buckets[b].push((tick, stencil));
         self.occupied |= 1 << b;
