@@ -42,6 +42,15 @@
 //! * when `d == 0` the normal is undefined; a deterministic fallback is used, see
 //!   [`fallback_normal`].
 //!
+//! These choices keep `d` free of NaN, not exact to rounding: where the plane
+//! formula's normal is badly conditioned `d` can be off the exact distance by
+//! far more than a few ulps (measured against exact rationals, on sliver
+//! triangles and nearly parallel edges down to a thinness of 1e-15: up to
+//! about 1e-8 of the coordinates, either way). What must never exceed the
+//! exact distance — the certificates that let the engine skip an evaluation —
+//! therefore uses [`separation_lower_bound`], which needs only a direction
+//! and carries its own rounding bound.
+//!
 //! Squared lengths of cross products (fourth powers of lengths) are formed, so
 //! results are accurate when coordinate differences lie within about
 //! `[1e-70, 1e70]`; cloth in metres is far inside. Outside that range the results
@@ -186,4 +195,83 @@ pub(crate) fn normal_along(diff: DVec3, d: f64) -> Option<DVec3> {
     } else {
         None
     }
+}
+
+/// A direction of Euclidean norm at most 1, rounding included: what a
+/// [`separation_lower_bound`] is taken along.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Direction(DVec3);
+
+impl Direction {
+    /// `n` scaled to a norm of at most 1 (a unit `n`, such as a
+    /// [`Closest::n`], keeps its direction and a norm of about
+    /// `1 - 2^-49`). Not finite or zero: a direction whose bound is never
+    /// positive.
+    ///
+    /// With `u = 2^-53`, the computed `n . n` is at least `|n|^2 (1 - 3u)`
+    /// (three nonnegative terms), its square root `r` at least
+    /// `|n| (1 - 2.51 u)`, the factor `c = fl((1 - 2^-49) / r)` at most
+    /// `(1 - 16 u)(1 + u) / r <= (1 - 12.4 u) / |n|`, and the scaled vector,
+    /// each component rounded once, has norm at most
+    /// `|n| c (1 + u) <= 1 - 11.3 u`. (`1 - 2^-49` is exact.)
+    #[inline]
+    pub fn along(n: DVec3) -> Self {
+        let c = (1.0 - f64::powi(2.0, -49)) / n.dot(n).sqrt();
+        Self(n * c)
+    }
+
+    /// The direction as a vector (norm at most 1).
+    #[inline]
+    pub fn vector(self) -> DVec3 {
+        self.0
+    }
+}
+
+/// A lower bound of the exact distance between the stencil's primitives at
+/// positions `x` (`[p, a, b, c]` or `[p0, p1, q0, q1]`), separating them
+/// along `n` (which should point from the second primitive to the first,
+/// as [`Closest::n`] does): never above the true distance, rounding
+/// included, whatever `n` is; close to it when `n` is nearly the direction
+/// of the closest points (the normal of an exact evaluation at nearby
+/// positions). NaN or `-inf` when a position or `n` is not finite.
+///
+/// **Why it is a bound (weak duality).** For any `|n| <= 1` and any
+/// points `P` of the first primitive and `Q` of the second,
+/// `|P - Q| >= n . (P - Q) >= min_j n . x_j - max_k n . x_k` over the
+/// vertices `j` of the first and `k` of the second, since a linear function
+/// takes its extremes over a convex hull at the hull's vertices. With the
+/// exact closest points and the exact normal the bound is the distance.
+/// Unlike a bound carried from an earlier evaluation by the vertices'
+/// displacements, it does not fall when both primitives move together, nor
+/// when one slides along the other, and it does not rest on the accuracy
+/// of [`stencil_closest`] (only on `n`'s being a direction): a sliver
+/// triangle or nearly parallel edges can only make it looser.
+///
+/// **Rounding.** Everything is taken relative to `x_0` (the bound is
+/// unchanged by a common translation): `d_j = fl(x_j - x_0)` and
+/// `t_j = fl(n . d_j)`. With `u = 2^-53` and `|n_i| <= 1`, the rounding of
+/// `d_j` moves `n . d_j` by at most `u |d_j|_1` and the dot product adds at
+/// most `3.01 u |d_j|_1`; the minimum over the first primitive and the
+/// maximum over the second (disjoint vertices) are therefore off by at most
+/// `4.01 u s` together, `s = sum_j |d_j|_1`, and the difference `g` is
+/// rounded once more (`u |g|`). The slack subtracted, `2^-50 (s + |g|)`
+/// as computed, is at least `7.9 u (s + |g|)`, and the final subtraction
+/// rounds by at most `u |g|` more: the result stays below
+/// `g_exact - 3.8 u s - 5.8 u |g|`. A non-finite input makes `s` or `g`
+/// NaN or infinite and the result NaN or `-inf` (the extremes below keep
+/// a NaN).
+#[inline]
+pub fn separation_lower_bound(kind: StencilKind, n: Direction, x: &[DVec3; 4]) -> f64 {
+    let n = n.0;
+    let d = [x[1] - x[0], x[2] - x[0], x[3] - x[0]];
+    let t = [0.0, n.dot(d[0]), n.dot(d[1]), n.dot(d[2])];
+    let s = d.iter().map(|v| v.abs().element_sum()).sum::<f64>();
+    // (`f64::min`/`max` would drop a NaN: it must stay)
+    let lower = |a: f64, b: f64| if a < b || a.is_nan() { a } else { b };
+    let upper = |a: f64, b: f64| if a > b || a.is_nan() { a } else { b };
+    let g = match kind {
+        StencilKind::VertexFace => t[0] - upper(upper(t[1], t[2]), t[3]),
+        StencilKind::EdgeEdge => lower(t[0], t[1]) - upper(t[2], t[3]),
+    };
+    g - f64::powi(2.0, -50) * (s + g.abs())
 }

@@ -119,6 +119,9 @@ struct Sample {
     /// Internal ticks over all passes (rolled-back ones too).
     internal_ticks_all_passes: u64,
     layer_events: u64,
+    /// Exact distance evaluations at penalty batches (the other layer
+    /// events were skipped by a certificate or a distance bound).
+    layer_evaluations: u64,
     /// Contact islands summed over windows, and the layer events of each
     /// window's largest island.
     islands: u64,
@@ -301,6 +304,8 @@ pub struct BenchReport {
     pub narrow_queries_per_window: f64,
     pub internal_evaluations_per_window: f64,
     pub layer_events_per_window: f64,
+    /// Of the layer events, those evaluated exactly (per window).
+    pub layer_evaluations_per_window: f64,
     /// Contact islands per window, and the largest island's share of the
     /// layer events (what bounds running islands in parallel).
     pub islands_per_window: f64,
@@ -509,6 +514,7 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         narrow_queries_per_window: 0.0,
         internal_evaluations_per_window: 0.0,
         layer_events_per_window: 0.0,
+        layer_evaluations_per_window: 0.0,
         islands_per_window: 0.0,
         far_per_window: [0.0; 3],
         largest_unit_share: None,
@@ -937,6 +943,7 @@ fn measure<E: Executor>(
         s.internal_ticks_all_passes += w.internal_events * (u64::from(w.rollbacks) + 1);
         s.internal_evaluations += w.internal_stencil_evaluations;
         s.layer_events += w.layer_events;
+        s.layer_evaluations += w.layer_evaluations;
         s.islands += w.islands;
         s.largest_island_layer_events += w.largest_island_layer_events;
         s.far[0] += w.far_stencils;
@@ -995,6 +1002,7 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
     r.narrow_queries_per_window = first.narrow_queries as f64 / windows;
     r.internal_evaluations_per_window = first.internal_evaluations as f64 / windows;
     r.layer_events_per_window = first.layer_events as f64 / windows;
+    r.layer_evaluations_per_window = first.layer_evaluations as f64 / windows;
     r.islands_per_window = first.islands as f64 / windows;
     r.far_per_window = [0, 1, 2].map(|k| first.far[k] as f64 / windows);
     r.largest_unit_share = (first.layer_events > 0 && first.far[0] > 0)
@@ -1176,7 +1184,7 @@ fn table(r: &BenchReport) -> String {
         s,
         "per window  {:.2} rollbacks, {:.0} narrow-phase queries ({} breakpoints per queried \
          vertex; {} of certified intervals by block bounds alone), {:.4e} internal stencil \
-         evaluations, {:.4e} penalty-layer evaluations",
+         evaluations, {:.4e} penalty-layer evaluations ({:.4e} exact distances)",
         r.rollbacks_per_window,
         r.narrow_queries_per_window,
         r.breakpoints_per_queried_vertex
@@ -1184,7 +1192,8 @@ fn table(r: &BenchReport) -> String {
         r.block_certified_share
             .map_or("—".into(), |b| format!("{:.0} %", 100.0 * b)),
         r.internal_evaluations_per_window,
-        r.layer_events_per_window
+        r.layer_events_per_window,
+        r.layer_evaluations_per_window
     );
     let _ = writeln!(
         s,

@@ -22,7 +22,8 @@
 //!    tick gave are shown to the caps (and its breakpoint counted); every
 //!    far stencil whose cap broke, whose certificate ends by `e`, whose
 //!    vertices piled up breakpoints or that passed a check after the last
-//!    segment is certified again from its exact distance at `s`. One that
+//!    segment is certified again from its distance at `s` (a lower bound of
+//!    the exact distance, `separation_lower_bound`). One that
 //!    cannot be certified through `e` is promoted before the segment runs.
 //! 2. **During**: an island reports every far vertex whose new speed breaks
 //!    its cap (`SegmentOutput::fast`), the caps being fixed for the segment.
@@ -37,7 +38,10 @@
 //! inside `eta_1`. Suppose one would, and take the first such kick in time,
 //! at tick `t`. Up to `t` no far stencil kicked, so the islands' run equals
 //! the global schedule there, and the stencil is within `eta_1` at `t` in
-//! that run too. Its certificate then failed at or before `t`: a vertex
+//! that run too (by its evaluated distance; the certificates bound the
+//! exact one, so this takes the evaluation to err by less than their
+//! margin, as `island.rs`'s scan does). Its certificate then failed at or
+//! before `t`: a vertex
 //! broke its cap or piled up breakpoints (seen in step 3 of that segment,
 //! whose check from the exact distance at `s` and the speeds actually
 //! reached is a sound bound and fails, so it is promoted and the segment
@@ -54,9 +58,9 @@ use std::collections::BinaryHeap;
 
 use glam::DVec3;
 use weft_core::{StencilKey, StencilKind};
-use weft_geom::distance::stencil_closest;
+use weft_geom::distance::{separation_lower_bound, stencil_closest, Direction};
 
-use super::island::{distance_lower_bound, sleep, SegmentOutput};
+use super::island::{sleep, SegmentOutput};
 use crate::clock::Tick;
 use crate::dormancy::{BREAKPOINTS_PER_WAKE, HEADROOM};
 use crate::executor::Executor;
@@ -158,7 +162,7 @@ fn pos_at(w: &World, i: u32, t: Tick) -> DVec3 {
 
 /// The tick up to which (exclusive) a stencil of vertices `v` is certified
 /// outside `eta_1` from tick `t` on while its vertices keep to `caps`
-/// (`None`: not even through `t + 1`), with the exact distance at `t`.
+/// (`None`: not even through `t + 1`), with the evaluated distance at `t`.
 fn certify(
     w: &World,
     kind: StencilKind,
@@ -167,8 +171,8 @@ fn certify(
     t: Tick,
 ) -> (Option<Tick>, f64) {
     let x: [DVec3; 4] = std::array::from_fn(|j| pos_at(w, v[j], t));
-    let d = stencil_closest(kind, &x).d;
-    let lower = distance_lower_bound(kind, d, &x, &x);
+    let c = stencil_closest(kind, &x);
+    let lower = separation_lower_bound(kind, Direction::along(c.n), &x);
     let (awake_at, room) = sleep(
         kind,
         lower,
@@ -178,7 +182,7 @@ fn certify(
         w.lattice.quantum,
         t,
     );
-    ((room > 0.0 && awake_at > t).then_some(awake_at), d)
+    ((room > 0.0 && awake_at > t).then_some(awake_at), c.d)
 }
 
 /// The speed cap a velocity sets: [`HEADROOM`] × its speed.
