@@ -176,7 +176,9 @@ fn certify(
     let (awake_at, room) = sleep(
         kind,
         lower,
-        w.schedule.eta_1,
+        // (layer 1's thickness as the kicks compare it, which can be an
+        // ulp off `eta_1`)
+        w.schedule.eta(1),
         &x,
         caps,
         w.lattice.quantum,

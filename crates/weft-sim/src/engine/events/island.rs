@@ -518,7 +518,7 @@ impl Island {
                     let caps = m.watch.map(|j| this.dormancy.cap(j as usize));
                     let q = w.lattice.quantum;
                     let (awake_at, room) =
-                        sleep(m.key.kind, lower, w.schedule.eta_1, &x, &caps, q, t);
+                        sleep(m.key.kind, lower, sh.layer(1).0, &x, &caps, q, t);
                     if room > 0.0 {
                         verdicts.push((a, Verdict::Doze(0, awake_at)));
                     } else {
