@@ -100,7 +100,10 @@ pub(super) fn sleep(
     if !(room > 0.0) {
         return (t, room);
     }
-    let cap = |r: std::ops::Range<usize>| r.map(|j| caps[j]).fold(0.0f64, f64::max);
+    // (a NaN cap stays NaN, and then certifies nothing: `f64::max` would
+    // drop it and leave the other caps)
+    let largest = |m: f64, c: f64| if c > m || c.is_nan() { c } else { m };
+    let cap = |r: std::ops::Range<usize>| r.map(|j| caps[j]).fold(0.0f64, largest);
     let s = (cap(0..split) + cap(split..4)) * (1.0 + f64::powi(2.0, -40)) * quantum;
     let ticks = room / s; // +inf when nothing moves
     let awake_at = if ticks >= (Tick::MAX - t) as f64 {
@@ -517,8 +520,7 @@ impl Island {
                 if lower >= eta_first && !sh.exhaustive {
                     let caps = m.watch.map(|j| this.dormancy.cap(j as usize));
                     let q = w.lattice.quantum;
-                    let (awake_at, room) =
-                        sleep(m.key.kind, lower, sh.layer(1).0, &x, &caps, q, t);
+                    let (awake_at, room) = sleep(m.key.kind, lower, sh.layer(1).0, &x, &caps, q, t);
                     if room > 0.0 {
                         verdicts.push((a, Verdict::Doze(0, awake_at)));
                     } else {
@@ -759,10 +761,11 @@ mod tests {
 
     /// A certificate whose length in ticks is near the end of the clock,
     /// where `Tick::MAX - t` is rounded as a float, ends after its tick
-    /// without overflowing. (Non-finite positions never give a bound that
-    /// could certify: `weft-geom`'s `tests/separation.rs`.)
+    /// without overflowing, and a cap that is not a number certifies
+    /// nothing. (Non-finite positions never give a bound that could
+    /// certify: `weft-geom`'s `tests/separation.rs`.)
     #[test]
-    fn certificates_near_the_end_of_the_clock_end_after_their_tick() {
+    fn certificates_near_the_end_of_the_clock_or_with_a_nan_cap() {
         let x0 = [DVec3::ZERO, DVec3::X, DVec3::Y, DVec3::Z];
         let caps = [1.0, 0.0, 0.0, 0.0];
         for t in [1, 1500, 1 << 20] {
@@ -770,6 +773,15 @@ mod tests {
                 let lower = 1.844_674_407_370_95e19 + (k * 1024) as f64;
                 let (at, room) = sleep(StencilKind::VertexFace, lower, 0.0, &x0, &caps, 1.0, t);
                 assert!(room > 0.0 && at > t, "{t}, {k}: {at}");
+            }
+        }
+        // A cap that is not a number certifies nothing (wherever it is).
+        for j in 0..4 {
+            let mut caps = [1.0, 0.5, 0.0, 0.25];
+            caps[j] = f64::NAN;
+            for kind in [StencilKind::VertexFace, StencilKind::EdgeEdge] {
+                let (at, _) = sleep(kind, 10.0, 1.0, &x0, &caps, 1.0, 7);
+                assert_eq!(at, 7, "{kind:?}, NaN cap of vertex {j}");
             }
         }
     }
