@@ -44,9 +44,11 @@
 //!
 //! These choices keep `d` free of NaN, not exact to rounding: where the plane
 //! formula's normal is badly conditioned `d` can be off the exact distance by
-//! far more than a few ulps (measured against exact rationals, on sliver
-//! triangles and nearly parallel edges down to a thinness of 1e-15: up to
-//! about 1e-8 of the coordinates, either way). What must never exceed the
+//! far more than a few ulps. Measured against exact rationals on sliver
+//! triangles and nearly parallel edges of thinness 1e-15 to 1e-2: up to
+//! about 1e-8 of the coordinates, either way; and a second reader's search
+//! found a sliver (edges of length 1, twice its area 4e-12) evaluated at
+//! 1.5e-6 from a point 7.8e-6 away: 6e-6 of the coordinates. What must never exceed the
 //! exact distance — the certificates that let the engine skip an evaluation —
 //! therefore uses [`separation_lower_bound`], which needs only a direction
 //! and carries its own rounding bound.
@@ -208,14 +210,26 @@ impl Direction {
     /// `1 - 2^-49`). Not finite or zero: a direction whose bound is never
     /// positive.
     ///
-    /// With `u = 2^-53`, the computed `n . n` is at least `|n|^2 (1 - 3u)`
-    /// (three nonnegative terms), its square root `r` at least
-    /// `|n| (1 - 2.51 u)`, the factor `c = fl((1 - 2^-49) / r)` at most
-    /// `(1 - 16 u)(1 + u) / r <= (1 - 12.4 u) / |n|`, and the scaled vector,
-    /// each component rounded once, has norm at most
-    /// `|n| c (1 + u) <= 1 - 11.3 u`. (`1 - 2^-49` is exact.)
+    /// With `u = 2^-53`, when `n . n` lies in `[2^-1000, f64::MAX]`: the
+    /// computed `n . n` is at least `|n|^2 (1 - 3u - 3 · 2^-75)` (three
+    /// nonnegative products, each off by at most `u` of itself or, where
+    /// it underflows, `2^-1075`, against a sum of at least `2^-1000`), its
+    /// square root `r` at least `|n| (1 - 2.51 u)`, the factor
+    /// `c = fl((1 - 2^-49) / r)` at most `(1 - 16 u)(1 + u) / r <=
+    /// (1 - 12.4 u) / |n|`, and the scaled vector, each component rounded
+    /// once, has norm at most `|n| c (1 + u) <= 1 - 11.3 u`. (`1 - 2^-49`
+    /// is exact.) Otherwise (`n . n` underflows or overflows) `n` is first
+    /// divided by its largest absolute component, which only scales it
+    /// (any direction will do, only the norm matters): that component
+    /// becomes exactly 1, so `n . n` then lies in `[1, 3]`.
     #[inline]
     pub fn along(n: DVec3) -> Self {
+        let nn = n.dot(n);
+        let n = if (f64::powi(2.0, -1000)..=f64::MAX).contains(&nn) {
+            n
+        } else {
+            n / n.abs().max_element() // (zero or not finite: NaN)
+        };
         let c = (1.0 - f64::powi(2.0, -49)) / n.dot(n).sqrt();
         Self(n * c)
     }
@@ -257,7 +271,12 @@ impl Direction {
 /// rounded once more (`u |g|`). The slack subtracted, `2^-50 (s + |g|)`
 /// as computed, is at least `7.9 u (s + |g|)`, and the final subtraction
 /// rounds by at most `u |g|` more: the result stays below
-/// `g_exact - 3.8 u s - 5.8 u |g|`. A non-finite input makes `s` or `g`
+/// `g_exact - 3.8 u s - 5.8 u |g|`. That assumes no underflow; where the
+/// products `n_i d_ji` or the slack underflow (coordinate differences
+/// near `2^-1022`), each loses at most `2^-1075` absolutely, and the
+/// smallest normal number `2^-1022` added to the slack covers them all (it
+/// is absorbed by rounding unless the slack is below `2^-969`). A
+/// non-finite input makes `s` or `g`
 /// NaN or infinite and the result NaN or `-inf` (the extremes below keep
 /// a NaN).
 #[inline]
@@ -273,5 +292,5 @@ pub fn separation_lower_bound(kind: StencilKind, n: Direction, x: &[DVec3; 4]) -
         StencilKind::VertexFace => t[0] - upper(upper(t[1], t[2]), t[3]),
         StencilKind::EdgeEdge => lower(t[0], t[1]) - upper(t[2], t[3]),
     };
-    g - f64::powi(2.0, -50) * (s + g.abs())
+    g - (f64::powi(2.0, -50) * (s + g.abs()) + f64::MIN_POSITIVE)
 }

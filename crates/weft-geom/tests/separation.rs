@@ -241,3 +241,71 @@ fn the_separation_bound_of_a_point_above_a_face_is_its_height() {
     let lower = separation_lower_bound(StencilKind::VertexFace, Direction::along(DVec3::Z), &x);
     assert!(lower <= 0.5 && lower > 0.5 * (1.0 - 1e-14), "{lower}");
 }
+
+/// Underflow and overflow, where the rounding analysis of the normal range
+/// does not hold (found by a second reader): directions whose `n . n`
+/// underflows or overflows keep a norm of at most 1 and their direction,
+/// and coordinate differences near the smallest normal number (subnormal
+/// products) still give a bound below the exact distance.
+#[test]
+fn the_separation_bound_holds_under_underflow_and_overflow() {
+    let one = rational(1.0).unwrap();
+    let unit_tetra = [DVec3::X, DVec3::ZERO, DVec3::Y, DVec3::Z];
+    // `n . n` rounds to a subnormal (the scaled direction had norm 1.18) or
+    // to 0, or overflows (it became the zero vector).
+    for n in [
+        DVec3::new(2.63e-162, 0.0, 0.0),
+        DVec3::new(1.5688e-159, 0.0, -1.1053e-159),
+        DVec3::new(3e-320, 0.0, 0.0),
+        DVec3::new(1e200, 0.0, 0.0),
+        DVec3::new(f64::MAX, 1e300, 0.0),
+    ] {
+        let d = Direction::along(n);
+        let q = qvec(d.vector()).unwrap();
+        assert!(qdot(&q, &q) <= one, "{n:?}: {d:?}");
+        let lower = separation_lower_bound(StencilKind::VertexFace, d, &unit_tetra);
+        assert!(lower <= 1.0 && lower > 0.0, "{n:?}: {lower}");
+    }
+    let mut rng = Rng(0x0de7);
+    for case in 0..20_000u64 {
+        // tiny or huge directions
+        let n = unit(&mut rng) * 10f64.powf(rng.uniform(-320.0, 300.0));
+        let d = Direction::along(n);
+        let q = qvec(d.vector()).unwrap();
+        assert!(qdot(&q, &q) <= one, "case {case}: {n:?} gave {d:?}");
+        // stencils of subnormal or nearly subnormal size
+        let kind = KINDS[(case % 2) as usize];
+        let scale = f64::powi(2.0, -1074 + (rng.below(80) as i32));
+        let x: [DVec3; 4] = std::array::from_fn(|_| {
+            DVec3::new(
+                rng.below(9) as f64 - 4.0,
+                rng.below(9) as f64 - 4.0,
+                rng.below(9) as f64 - 4.0,
+            ) * scale
+        });
+        let dir = Direction::along(if case % 3 == 0 { unit(&mut rng) } else { n });
+        let lower = separation_lower_bound(kind, dir, &x);
+        if lower > 0.0 {
+            let qx: [QVec; 4] = std::array::from_fn(|j| qvec(x[j]).unwrap());
+            let q_lower = rational(lower).unwrap();
+            assert!(
+                &q_lower * &q_lower <= stencil_distance_sq(kind, &qx),
+                "case {case} ({kind:?}): x = {x:?}, n = {dir:?}, bound {lower}"
+            );
+        }
+    }
+    // The second reader's example: differences of one subnormal step.
+    let m = f64::from_bits(1);
+    let x = [
+        DVec3::ZERO,
+        DVec3::new(-m, -m, 0.0),
+        DVec3::new(-m, -m, 0.0),
+        DVec3::new(-m, -m, 0.0),
+    ];
+    let lower = separation_lower_bound(
+        StencilKind::VertexFace,
+        Direction::along(DVec3::new(1.0, 1.0, 0.0)),
+        &x,
+    );
+    assert!(lower <= 0.0, "{lower}");
+}

@@ -79,8 +79,9 @@ fn split_of(kind: StencilKind) -> usize {
 /// coordinate on the way: at most `max |x| + lower`, since a vertex moves
 /// less than `lower` before the stencil wakes). A vertex wakes its stencils
 /// after at most [`crate::dormancy::BREAKPOINTS_PER_WAKE`] breakpoints, so the drift
-/// rounding adds at most `1025 · 2 u M < 2^-42 M`. The slack
-/// `2^-39 (1 + max |x| + |lower|)` covers it four times over. (It once
+/// rounding adds at most `1025 · 2 u M = 2050 u M` on each side, `4100 u
+/// M` for both. The slack `2^-39 (1 + max |x| + |lower|)`, `16384 u` of
+/// it, covers that about four times over. (It once
 /// also covered the rounding of an evaluated distance, assumed a few ulps
 /// of the coordinates; the bound no longer rests on an evaluated distance,
 /// and on sliver triangles and nearly parallel edges that assumption was
@@ -514,9 +515,10 @@ impl Island {
                 // distance is not below the exact one by more than
                 // `lower - eta_first`: on well-shaped stencils it is within
                 // a few ulps; on sliver triangles and nearly parallel edges
-                // it has been measured up to 1e-8 of the coordinates below
-                // (`stencil_closest`'s plane formula), where an evaluation
-                // could kick a stencil whose exact distance is outside.
+                // it has been measured up to 6e-6 of the coordinates below
+                // (`stencil_closest`'s plane formula, `weft_geom::distance`),
+                // where an evaluation could kick a stencil whose exact
+                // distance is outside.
                 if lower >= eta_first && !sh.exhaustive {
                     let caps = m.watch.map(|j| this.dormancy.cap(j as usize));
                     let q = w.lattice.quantum;
