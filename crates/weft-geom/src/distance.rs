@@ -44,11 +44,13 @@
 //!
 //! These choices keep `d` free of NaN, not exact to rounding: where the plane
 //! formula's normal is badly conditioned `d` can be off the exact distance by
-//! far more than a few ulps. Measured against exact rationals on sliver
-//! triangles and nearly parallel edges of thinness 1e-15 to 1e-2: up to
-//! about 1e-8 of the coordinates, either way; and a second reader's search
-//! found a sliver (edges of length 1, twice its area 4e-12) evaluated at
-//! 1.5e-6 from a point 7.8e-6 away: 6e-6 of the coordinates. What must never exceed the
+//! far more than a few ulps. Measured against exact rationals
+//! (`tests/separation.rs`) on sliver triangles and nearly parallel edges of
+//! thinness 1e-15 to 1e-2: up to about 3e-9 of the coordinates above the
+//! exact distance (touching primitives), 2e-11 below it. (Before a sliver's
+//! face candidate was dropped where its error bound exceeds the triangle's
+//! height, 1e-8 below it, and a second reader found a sliver evaluated at
+//! 1.5e-6 from a point 7.8e-6 away.) What must never exceed the
 //! exact distance — the certificates that let the engine skip an evaluation —
 //! therefore uses [`separation_lower_bound`], which needs only a direction
 //! and carries its own rounding bound.

@@ -18,8 +18,10 @@
 //!
 //! A sliver triangle (`|m|^2 <= 1e-8 |u|^2 |v|^2`, i.e. a smallest angle below
 //! about 1e-4 rad) has a badly conditioned normal; there the face candidate is
-//! also compared with the edge candidates and the smaller distance wins. A
-//! zero-area triangle (`m == 0`) has no face candidate at all.
+//! also compared with the edge candidates and the smaller distance wins, and
+//! where the plane formula's error bound exceeds the triangle's smallest
+//! height (how far the edge candidates can be off) the face candidate is
+//! dropped. A zero-area triangle (`m == 0`) has no face candidate at all.
 
 use super::{fallback_normal, normal_along, point_segment, Closest};
 use weft_core::DVec3;
@@ -54,11 +56,24 @@ pub fn vertex_face(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> Closest {
                 n,
                 coeff: [1.0, -w0, -w1, -w2],
             };
-            let sliver = mm <= 1e-8 * u.dot(u) * v.dot(v);
+            let (uu, vv) = (u.dot(u), v.dot(v));
+            let sliver = mm <= 1e-8 * uu * vv;
             if !sliver {
                 return cand;
             }
-            face = Some(cand);
+            // The plane formula errs by about `|w| |delta m| / |m|`, the
+            // rounding of `m` being up to `2.83 u |u| |v|` (`u = 2^-53`),
+            // while every point of the triangle lies within its smallest
+            // height `h = |m| / (longest edge)` of the boundary, so the
+            // boundary candidates alone err by at most `h`. Keep the face
+            // candidate only where its error bound is the smaller (down to
+            // a thinness of about `sqrt(u)`, the larger error is then
+            // below about 1e-8 of the triangle's size).
+            let longest = uu.max(vv).max((c - b).dot(c - b)).sqrt();
+            let plane_error = 8.0 * f64::powi(2.0, -53) * w.length() * (uu * vv).sqrt() * inv_len;
+            if plane_error < mm.sqrt() / longest {
+                face = Some(cand);
+            }
         }
     }
 

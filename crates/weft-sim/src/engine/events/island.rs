@@ -515,10 +515,9 @@ impl Island {
                 // distance is not below the exact one by more than
                 // `lower - eta_first`: on well-shaped stencils it is within
                 // a few ulps; on sliver triangles and nearly parallel edges
-                // it has been measured up to 6e-6 of the coordinates below
-                // (`stencil_closest`'s plane formula, `weft_geom::distance`),
-                // where an evaluation could kick a stencil whose exact
-                // distance is outside.
+                // it has been measured up to 2e-11 of the coordinates below
+                // (`weft_geom::distance`), where an evaluation could kick a
+                // stencil whose exact distance is outside.
                 if lower >= eta_first && !sh.exhaustive {
                     let caps = m.watch.map(|j| this.dormancy.cap(j as usize));
                     let q = w.lattice.quantum;
