@@ -38,7 +38,9 @@
 //!   edges) the interior candidate's plane-based distance is additionally compared
 //!   with the boundary candidates and the smaller one is kept, so rounding in a
 //!   badly conditioned normal can only make `d` smaller (conservative for
-//!   contact), never larger than a true boundary distance;
+//!   contact), never larger than a true boundary distance; a sliver too thin
+//!   for the plane formula (its error bound above the triangle's smallest
+//!   height) has no face candidate;
 //! * when `d == 0` the normal is undefined; a deterministic fallback is used, see
 //!   [`fallback_normal`].
 //!
