@@ -41,8 +41,10 @@
 //! So a batch costs what the stencils that may kick in it cost, not what the
 //! whole active set does.
 //!
-//! Skipping only ever drops stencils whose kicks are zero, so the results are
-//! the same bits as visiting every stencil.
+//! Skipping only ever drops stencils whose exact distance is outside the
+//! firing layers, so their kicks are zero and the results are the same bits
+//! as visiting every stencil, wherever an evaluation errs by less than the
+//! certificates' margin (`engine::events::island`).
 
 use glam::DVec3;
 use weft_core::NONE;

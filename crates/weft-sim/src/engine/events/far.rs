@@ -43,7 +43,7 @@
 //! margin, as `island.rs`'s scan does). Its certificate then failed at or
 //! before `t`: a vertex
 //! broke its cap or piled up breakpoints (seen in step 3 of that segment,
-//! whose check from the exact distance at `s` and the speeds actually
+//! whose check from the distance bound at `s` and the speeds actually
 //! reached is a sound bound and fails, so it is promoted and the segment
 //! rerun with it), or the certificate ran out (seen in step 1). So no far
 //! stencil left out of an island ever kicks, and zero kicks write nothing.
