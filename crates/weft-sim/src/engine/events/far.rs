@@ -29,7 +29,7 @@
 //!    its cap (`SegmentOutput::fast`), the caps being fixed for the segment.
 //! 3. **After** ([`FarSet::check`], then [`FarSet::commit`]): each far
 //!    stencil with such a vertex, or with a vertex that piled up
-//!    breakpoints, is checked over `[s, e]` from its exact distance at `s`
+//!    breakpoints, is checked over `[s, e]` from its distance bound at `s`
 //!    and the largest speeds its vertices reached. One that fails is promoted and the merged unit runs
 //!    the segment again from the state at `s` (the world is written only
 //!    after), until every far stencil left passes.
