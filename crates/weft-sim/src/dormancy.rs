@@ -38,6 +38,11 @@
 //! breakpoints, which bounds the rounding of the positions drifted over them
 //! that a certificate must allow for.
 //!
+//! The kinematic vertices (a rod, a paddle) are read by many islands; their
+//! caps are kept once, by [`SharedCaps`], and shown each internal tick's
+//! velocities once: a vertex that breaks its cap is reported, and each
+//! island watching it wakes its stencils of it before its next batch.
+//!
 //! So a batch costs what the stencils that may kick in it cost, not what the
 //! whole active set does.
 //!
@@ -191,31 +196,11 @@ impl Dormancy {
     }
 
     /// Vertex `i` has a new velocity `v` (and a breakpoint): wakes its
-    /// stencils if its speed exceeds its cap (or is not finite) and raises
-    /// the cap, or if it has had [`BREAKPOINTS_PER_WAKE`] breakpoints since
-    /// it last woke them; lowers the cap when the speed fell below half of
-    /// it (free: see the module docs).
-    ///
-    /// The test compares squares: the computed `|v|^2` and `cap^2` are
-    /// within a few ulps of the exact ones, which the certificates' `2^-40`
-    /// margin on the caps covers (`engine::events::island::sleep`).
+    /// stencils when [`speed_cap_rule`] says so.
     #[inline]
     pub fn observe(&mut self, i: usize, v: DVec3) {
-        self.since[i] += 1;
-        let s2 = v.length_squared();
-        let cap = self.cap[i];
-        if !(s2 <= cap * cap) || self.since[i] >= BREAKPOINTS_PER_WAKE {
+        if speed_cap_rule(&mut self.cap[i], &mut self.since[i], v) {
             self.wake_vertex(i);
-            // (a speed that is not finite gets an infinite cap: no
-            // certificate then; NaN would read as 0 in `f64::max`)
-            self.cap[i] = if s2 <= f64::MAX {
-                s2.sqrt() * HEADROOM
-            } else {
-                f64::INFINITY
-            };
-            self.since[i] = 0;
-        } else if 4.0 * s2 < cap * cap {
-            self.cap[i] = s2.sqrt() * HEADROOM;
         }
     }
 
@@ -280,6 +265,87 @@ impl Dormancy {
         }
         self.set_reach(a, reach);
         self.stencils[i].until = until;
+    }
+}
+
+/// One vertex's speed cap with a new velocity `v` (and a breakpoint):
+/// returns whether the vertex must wake its stencils — its speed exceeds
+/// the cap (or is not finite), and the cap is raised to [`HEADROOM`] × the
+/// speed, or it has had [`BREAKPOINTS_PER_WAKE`] breakpoints since it last
+/// woke them; lowers the cap (no wake) when the speed fell below half of it
+/// (free: see the module docs).
+///
+/// The test compares squares: the computed `|v|^2` and `cap^2` are within
+/// a few ulps of the exact ones, which the certificates' `2^-40` margin on
+/// the caps covers (`engine::events::island::sleep`).
+#[inline]
+pub fn speed_cap_rule(cap: &mut f64, since: &mut u32, v: DVec3) -> bool {
+    *since += 1;
+    let s2 = v.length_squared();
+    if !(s2 <= *cap * *cap) || *since >= BREAKPOINTS_PER_WAKE {
+        // (a speed that is not finite gets an infinite cap: no certificate
+        // then; NaN would read as 0 in `f64::max`)
+        *cap = if s2 <= f64::MAX {
+            s2.sqrt() * HEADROOM
+        } else {
+            f64::INFINITY
+        };
+        *since = 0;
+        true
+    } else {
+        if 4.0 * s2 < *cap * *cap {
+            *cap = s2.sqrt() * HEADROOM;
+        }
+        false
+    }
+}
+
+/// Speed caps kept once for vertices that many islands watch: the
+/// kinematic vertices (a rod every unit touching it reads), whose velocity
+/// changes only at internal ticks. The same rule as a [`Dormancy`]'s own
+/// vertices ([`speed_cap_rule`]); a vertex that must wake its stencils is
+/// reported, and every island watching it wakes its stencils of it before
+/// its next batch (`engine::events::island`), so a certificate may assume
+/// these caps as it does its own.
+#[derive(Clone, Debug, Default)]
+pub struct SharedCaps {
+    /// The vertices (ascending).
+    ids: Vec<u32>,
+    cap: Vec<f64>,
+    since: Vec<u32>,
+}
+
+impl SharedCaps {
+    /// The caps of the vertices `ids` (ascending), their velocities `v(i)`
+    /// shown once.
+    pub fn new(ids: Vec<u32>, v: impl Fn(u32) -> DVec3) -> Self {
+        let mut caps = SharedCaps {
+            cap: vec![0.0; ids.len()],
+            since: vec![0; ids.len()],
+            ids,
+        };
+        caps.observe(v, &mut Vec::new());
+        caps
+    }
+
+    /// Every vertex has a new velocity `v(i)` (an internal tick): appends
+    /// to `woken` (ascending) those that must wake their stencils.
+    pub fn observe(&mut self, v: impl Fn(u32) -> DVec3, woken: &mut Vec<u32>) {
+        for (k, &i) in self.ids.iter().enumerate() {
+            if speed_cap_rule(&mut self.cap[k], &mut self.since[k], v(i)) {
+                woken.push(i);
+            }
+        }
+    }
+
+    /// Vertex `i`'s slot (`None`: not kept here).
+    pub fn slot(&self, i: u32) -> Option<usize> {
+        self.ids.binary_search(&i).ok()
+    }
+
+    /// The caps, by slot.
+    pub fn caps(&self) -> &[f64] {
+        &self.cap
     }
 }
 
@@ -478,6 +544,37 @@ mod tests {
         d.observe(3, DVec3::NAN);
         assert_eq!(sorted(&d), [0, 1]);
         assert_eq!(d.cap(3), f64::INFINITY);
+    }
+
+    /// Shared caps follow the same rule and report the vertices that must
+    /// wake their stencils, in ascending order: above the cap, not
+    /// finite, or on the `BREAKPOINTS_PER_WAKE`-th breakpoint.
+    #[test]
+    fn shared_caps_report_the_vertices_that_broke_them() {
+        let mut caps = SharedCaps::new(vec![2, 5, 9], |_| DVec3::X);
+        assert_eq!(caps.caps(), [HEADROOM; 3]);
+        assert_eq!((caps.slot(5), caps.slot(4)), (Some(1), None));
+        let mut woken = Vec::new();
+        caps.observe(
+            |i| if i == 5 { DVec3::X * 2.0 } else { DVec3::Y },
+            &mut woken,
+        );
+        assert_eq!(woken, [5]);
+        assert_eq!(caps.caps()[1], 2.0 * HEADROOM);
+        woken.clear();
+        caps.observe(|i| if i == 9 { DVec3::NAN } else { DVec3::Y }, &mut woken);
+        assert_eq!(woken, [9]);
+        assert_eq!(caps.caps()[2], f64::INFINITY);
+        // Slow and steady: vertex 2 wakes on its BREAKPOINTS_PER_WAKE-th
+        // breakpoint since it last woke (the first look, which raised its
+        // cap from 0; it has had 2 since).
+        woken.clear();
+        for _ in 3..BREAKPOINTS_PER_WAKE {
+            caps.observe(|_| DVec3::ZERO, &mut woken);
+        }
+        assert!(!woken.contains(&2), "{woken:?}");
+        caps.observe(|_| DVec3::ZERO, &mut woken);
+        assert_eq!(woken.last(), Some(&2));
     }
 
     /// Past 2^32 ticks after the base, wake ticks are clamped there: a

@@ -19,7 +19,7 @@ use weft_geom::distance::stencil_closest;
 use weft_geom::intersections::mesh_self_intersections;
 use weft_geom::shapes::{cuboid, grid, sphere};
 use weft_sim::broad::BroadPhase;
-use weft_sim::kinematics::Motion;
+use weft_sim::kinematics::{Keyframes, Motion};
 use weft_sim::layers::{penalty_kick, LayerSchedule};
 use weft_sim::materials::{damping_step_limit, Material, MaterialError};
 use weft_sim::trajectory::Trajectories;
@@ -1995,6 +1995,68 @@ fn skipped_layer_events_give_the_bits_of_full_evaluation() {
         2 * evaluations < events,
         "the skips must skip: {evaluations} of {events}"
     );
+}
+
+/// A kinematic obstacle's speed caps are kept once for every island
+/// (`weft_sim::dormancy::SharedCaps`): when it speeds up, every island
+/// watching it must wake its stencils of it. A plate rises slowly under a
+/// cloth at rest, so the stencils between them sleep under the plate's
+/// slow speed, then it speeds up tenfold at an internal tick: with its
+/// skips the engine must end every window with the bits of evaluating
+/// every event (without the wake, the sleeping stencils miss their first
+/// kicks and this fails).
+#[test]
+fn a_kinematic_obstacle_that_speeds_up_wakes_the_stencils_asleep_against_it() {
+    let mut kicks = 0u64;
+    for (slow, fast_at) in [(0.02, 3.0), (0.05, 5.0), (0.1, 7.0)] {
+        let plate = grid(DVec3::ZERO, DVec3::X, DVec3::Y, [0.06, 0.06], [6, 6]);
+        let sheet = grid(DVec3::Z * 2.5e-3, DVec3::X, DVec3::Y, [0.04, 0.04], [6, 6]);
+        let still = vec![
+            obstacle("plate", plate.clone()),
+            cloth("sheet", sheet.clone(), DVec3::ZERO),
+        ];
+        let probe = engine(&spec(still, DVec3::ZERO, 20));
+        // Frames one window apart, half a window off the windows (a
+        // speed-up at a window's start would meet islands built afresh),
+        // the speed-up after `fast_at` frames.
+        let window = 20.0 * probe.world.lattice.h_el();
+        let rise = |k: usize| {
+            let windows = k as f64;
+            let z = if windows <= fast_at {
+                slow * window * windows
+            } else {
+                slow * window * (fast_at + 10.0 * (windows - fast_at))
+            };
+            plate.positions.iter().map(|&p| p + DVec3::Z * z).collect()
+        };
+        let script = Keyframes {
+            frame_rate: 1.0 / window,
+            start: 0.5 * window,
+            frames: (0..40).map(rise).collect(),
+        };
+        let mut moving = obstacle("plate", plate.clone());
+        moving.kind = ObjectKind::Obstacle {
+            motion: Motion::Sequence(script),
+        };
+        let s = spec(
+            vec![moving, cloth("sheet", sheet, DVec3::ZERO)],
+            DVec3::ZERO,
+            20,
+        );
+        let mut fast = engine(&s);
+        let mut full = engine(&s);
+        full.evaluate_every_layer_event(true);
+        for w in 0..16 {
+            let a = fast.step_window().unwrap();
+            let b = full.step_window().unwrap();
+            let what = format!("slow {slow} m/s, faster after {fast_at} windows, window {w}");
+            assert_eq!(fast.world.x, full.world.x, "{what}: positions");
+            assert_eq!(fast.world.v, full.world.v, "{what}: velocities");
+            assert_eq!(a.layer_kicks, b.layer_kicks, "{what}: kicks");
+            kicks += a.layer_kicks;
+        }
+    }
+    assert!(kicks > 100, "too little contact: {kicks} kicks");
 }
 
 // ------------------------------------------------- 5. penalty kick = -h dV/dx

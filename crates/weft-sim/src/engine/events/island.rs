@@ -22,7 +22,7 @@ use weft_core::{StencilKey, StencilKind, NONE};
 use weft_geom::distance::{separation_lower_bound, stencil_closest, Closest, Direction};
 
 use crate::clock::Tick;
-use crate::dormancy::Dormancy;
+use crate::dormancy::{Dormancy, SharedCaps};
 use crate::executor::Executor;
 use crate::layers::{penalty_kick, FrictionClamp, PenaltyImpulse};
 use crate::trace;
@@ -142,6 +142,12 @@ pub(super) struct Shared<'a> {
     /// far stencil): a new speed above it is reported in
     /// [`SegmentOutput::fast`].
     pub far_cap: &'a [f64],
+    /// The kinematic vertices' speed caps, kept once for every island
+    /// (`crate::dormancy::SharedCaps`, by slot), and those that broke them
+    /// at the internal tick before this segment (ascending): an island
+    /// wakes its stencils of these before its first batch.
+    pub kinematic_caps: &'a [f64],
+    pub kinematic_woken: &'a [u32],
 }
 
 impl Shared<'_> {
@@ -209,6 +215,9 @@ pub(super) struct Island {
     inv_mass: Vec<f64>,
     members: Vec<Member>,
     max_depth: u32,
+    /// The kinematic vertices' slots in the shared caps
+    /// (`Shared::kinematic_caps`), as `kinematic`.
+    kin_slot: Vec<u32>,
     /// The kinematic vertices its stencils read (global ids, ascending):
     /// the dormancy watches them after the island's own.
     kinematic: Vec<u32>,
@@ -243,12 +252,14 @@ pub(super) struct Island {
 impl Island {
     /// The island of the dynamic `vertices` (ascending) of the stencils
     /// `members` (key, depth; in key order), all awake, from tick `start`,
-    /// where the world holds its vertices' state.
+    /// where the world holds its vertices' state; its kinematic vertices'
+    /// speed caps are those of `shared` (which keeps every one).
     pub(super) fn of(
         vertices: Vec<u32>,
         members: Vec<(StencilKey, u32)>,
         w: &World,
         start: Tick,
+        shared: &SharedCaps,
     ) -> Self {
         // A global vertex's index among the island's: a dense map for a
         // large island (a search per stencil vertex was most of building
@@ -289,10 +300,18 @@ impl Island {
         let watched: Vec<[u32; 4]> = members.iter().map(|m| m.watch).collect();
         let depths: Vec<u32> = members.iter().map(|m| m.depth).collect();
         dormancy.reset(&watched, &depths, n + kinematic.len(), start);
-        for (j, &i) in vertices.iter().chain(&kinematic).enumerate() {
+        for (j, &i) in vertices.iter().enumerate() {
             dormancy.observe(j, w.v[i as usize]);
         }
+        let kin_slot = (kinematic.iter())
+            .map(|&i| {
+                shared
+                    .slot(i)
+                    .expect("every active stencil's kinematic vertex") as u32
+            })
+            .collect();
         Island {
+            kin_slot,
             inv_mass: vertices.iter().map(|&i| w.inv_mass[i as usize]).collect(),
             max_depth: members.iter().map(|m| m.depth).max().unwrap_or(0),
             kinematic,
@@ -345,8 +364,16 @@ impl Island {
             // velocity (and a breakpoint): stencils whose vertices broke
             // their speed caps wake, the others' certificates stand.
             let w = sh.world;
-            for (j, &i) in self.vertices.iter().chain(&self.kinematic).enumerate() {
+            for (j, &i) in self.vertices.iter().enumerate() {
                 self.dormancy.observe(j, w.v[i as usize]);
+            }
+        }
+        // The kinematic vertices that broke their shared caps at that tick
+        // (a new island is awake already).
+        let n = self.vertices.len();
+        for &i in sh.kinematic_woken {
+            if let Ok(k) = self.kinematic.binary_search(&i) {
+                self.dormancy.wake_vertex(n + k);
             }
         }
         // Nothing awake and nothing due to wake before the segment's last
@@ -519,7 +546,11 @@ impl Island {
                 // (`weft_geom::distance`), where an evaluation could kick a
                 // stencil whose exact distance is outside.
                 if lower >= eta_first && !sh.exhaustive {
-                    let caps = m.watch.map(|j| this.dormancy.cap(j as usize));
+                    let n = this.vertices.len();
+                    let caps = m.watch.map(|j| match (j as usize).checked_sub(n) {
+                        None => this.dormancy.cap(j as usize),
+                        Some(k) => sh.kinematic_caps[this.kin_slot[k] as usize],
+                    });
                     let q = w.lattice.quantum;
                     let (awake_at, room) = sleep(m.key.kind, lower, sh.layer(1).0, &x, &caps, q, t);
                     if room > 0.0 {

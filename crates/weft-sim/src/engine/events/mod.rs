@@ -664,6 +664,8 @@ impl<E: Executor> Engine<E> {
             pass_end: self.ws.pass_end,
             split_batches: true,
             far_cap: &[],
+            kinematic_caps: &[],
+            kinematic_woken: &[],
         };
         let (ranks, me) = (self.exec.ranks(), self.exec.rank() as u32);
         let cpu = (ranks > 1).then(|| self.exec.work_cpu_seconds());
@@ -763,6 +765,8 @@ impl<E: Executor> Engine<E> {
             pass_end: ws.pass_end,
             split_batches: false,
             far_cap: &[],
+            kinematic_caps: &[],
+            kinematic_woken: &[],
         };
         let Workspace {
             units,

@@ -28,6 +28,7 @@ use super::far::{Checked, FarSet};
 use super::island::{Island, SegmentOutput, Shared};
 use super::{BINS_PER_RANK, BINS_PER_THREAD};
 use crate::clock::Tick;
+use crate::dormancy::SharedCaps;
 use crate::executor::Executor;
 use crate::trace;
 use crate::world::World;
@@ -68,6 +69,11 @@ pub(super) struct Units {
     /// Per depth `d`: the layer events of a stencil of depth `d` in the
     /// pass.
     events_at_depth: Vec<u64>,
+    /// The kinematic vertices' speed caps, kept once for every unit (each
+    /// unit would otherwise show every internal tick's rod velocities to
+    /// its own caps), and those that broke them at the last internal tick.
+    kinematic: SharedCaps,
+    kinematic_woken: Vec<u32>,
 }
 
 /// A unit to build: its dynamic vertices (ascending) and its stencils
@@ -94,12 +100,21 @@ impl Units {
             }
         }
         let cost = specs.iter().map(|s| s.1.len() as f64).collect();
+        // Every kinematic vertex of an active stencil (a unit built later
+        // by a promotion reads only these).
+        let mut kinematic: Vec<u32> = (w.layers.stencils.keys())
+            .flat_map(|k| k.v)
+            .filter(|&i| w.inv_mass[i as usize] == 0.0)
+            .collect();
+        kinematic.sort_unstable();
+        kinematic.dedup();
+        let kinematic = SharedCaps::new(kinematic, |i| w.v[i as usize]);
         let specs: Vec<Mutex<Option<UnitSpec>>> =
             specs.into_iter().map(|s| Mutex::new(Some(s))).collect();
         let islands = exec.map(specs.len(), &|u| {
             let (vertices, members) =
                 (specs[u].lock().expect("a spec").take()).expect("built once");
-            Mutex::new(Island::of(vertices, members, w, t0))
+            Mutex::new(Island::of(vertices, members, w, t0, &kinematic))
         });
         let pending = (
             FarCounts {
@@ -117,6 +132,8 @@ impl Units {
             after_internal: false,
             pending,
             events_at_depth,
+            kinematic,
+            kinematic_woken: Vec::new(),
         }
     }
 
@@ -134,6 +151,11 @@ impl Units {
         internal: bool,
     ) -> Vec<SegmentOutput> {
         let w = base.world;
+        self.kinematic_woken.clear();
+        if self.after_internal {
+            // The internal tick gave the kinematic vertices new velocities.
+            (self.kinematic).observe(|i| w.v[i as usize], &mut self.kinematic_woken);
+        }
         let (mut counts, mut checked) = std::mem::take(&mut self.pending);
         let before = trace::span("far before");
         let promote = (self.far).before_segment(exec, w, (s, e), self.after_internal, &mut checked);
@@ -144,7 +166,7 @@ impl Units {
             self.promote(&promote, w, s);
         }
         let mut outputs = {
-            let sh = with_caps(base, &self.far);
+            let sh = with_caps(base, &self.far, &self.kinematic, &self.kinematic_woken);
             run_bins(
                 exec,
                 &sh,
@@ -168,7 +190,7 @@ impl Units {
             let (changed, emptied) = self.promote(&promote, w, s);
             let _span = trace::span_with("island rerun", "units", changed.len() as u64);
             counts.reruns += changed.len() as u64;
-            let sh = with_caps(base, &self.far);
+            let sh = with_caps(base, &self.far, &self.kinematic, &self.kinematic_woken);
             let islands = &self.islands;
             let rerun = exec.map(changed.len(), &|k| {
                 let mut island = islands[changed[k] as usize].lock().expect("a unit's lock");
@@ -313,7 +335,7 @@ impl Units {
             }
             self.cost[slot as usize] = cost + members.len() as f64 * 1e-9;
             *self.islands[slot as usize].lock().expect("a unit") =
-                Island::of(vertices, members, w, s);
+                Island::of(vertices, members, w, s, &self.kinematic);
             changed.push(slot);
         }
         changed.sort_unstable();
@@ -325,8 +347,14 @@ impl Units {
 /// The cost of a unit whose last segment was idle.
 const IDLE_SECONDS: f64 = 1e-7;
 
-/// What the units read: `base` with the far stencils' speed caps.
-fn with_caps<'a>(base: &Shared<'a>, far: &'a FarSet) -> Shared<'a> {
+/// What the units read: `base` with the far stencils' speed caps and the
+/// kinematic vertices' shared caps.
+fn with_caps<'a>(
+    base: &Shared<'a>,
+    far: &'a FarSet,
+    kinematic: &'a SharedCaps,
+    woken: &'a [u32],
+) -> Shared<'a> {
     Shared {
         world: base.world,
         layer_consts: base.layer_consts,
@@ -334,6 +362,8 @@ fn with_caps<'a>(base: &Shared<'a>, far: &'a FarSet) -> Shared<'a> {
         pass_end: base.pass_end,
         split_batches: base.split_batches,
         far_cap: far.caps(),
+        kinematic_caps: kinematic.caps(),
+        kinematic_woken: woken,
     }
 }
 
