@@ -195,6 +195,23 @@ impl Dormancy {
         self.cap[i]
     }
 
+    /// The most breakpoints any of vertices `0..n` has had since it last
+    /// woke its stencils.
+    pub fn most_breakpoints(&self, n: usize) -> u32 {
+        self.since[..n].iter().copied().max().unwrap_or(0)
+    }
+
+    /// Vertices `0..n` had `k` breakpoints more, none of them with a speed
+    /// above its cap (internal ticks while their island was not visited:
+    /// the units checked their speeds against the caps), and fewer than
+    /// [`BREAKPOINTS_PER_WAKE`] in all since they last woke their stencils.
+    pub fn add_breakpoints(&mut self, n: usize, k: u32) {
+        for s in &mut self.since[..n] {
+            *s += k;
+            debug_assert!(*s < BREAKPOINTS_PER_WAKE);
+        }
+    }
+
     /// Vertex `i` has a new velocity `v` (and a breakpoint): wakes its
     /// stencils when [`speed_cap_rule`] says so.
     #[inline]

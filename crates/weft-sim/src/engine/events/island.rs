@@ -14,6 +14,7 @@
 //! kicks and hands them, in fold order, to the internal tick, which folds
 //! them after the internal forces exactly where the global schedule did.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use glam::DVec3;
@@ -341,6 +342,34 @@ impl Island {
     /// Its dynamic vertices, ascending.
     pub(super) fn vertices(&self) -> &[u32] {
         &self.vertices
+    }
+
+    /// After a segment: whether nothing is awake, and then the tick it is
+    /// next due to wake (`Some(Tick::MAX)`: none); and the most breakpoints
+    /// any of its vertices has had since it last woke its stencils. With
+    /// its vertices' caps (`publish_caps`), what lets the units skip it
+    /// without a visit while nothing can wake it.
+    pub(super) fn quiet(&mut self) -> (Option<Tick>, u32) {
+        let n = self.vertices.len();
+        let due =
+            (self.dormancy.max_reach() == 0).then(|| self.dormancy.next_due().unwrap_or(Tick::MAX));
+        (due, self.dormancy.most_breakpoints(n))
+    }
+
+    /// Writes its vertices' speed caps into `mirror` (by global vertex,
+    /// the bits of an `f64`; the units' islands hold disjoint vertices).
+    pub(super) fn publish_caps(&self, mirror: &[AtomicU64]) {
+        for (j, &i) in self.vertices.iter().enumerate() {
+            mirror[i as usize].store(self.dormancy.cap(j).to_bits(), Ordering::Relaxed);
+        }
+    }
+
+    /// Its vertices had `ticks` internal ticks' breakpoints while it was
+    /// not visited, none of them above its cap (the units' check).
+    pub(super) fn catch_up(&mut self, ticks: u32) {
+        if ticks > 0 {
+            self.dormancy.add_breakpoints(self.vertices.len(), ticks);
+        }
     }
 
     /// Its stencils (key, depth), in key order.

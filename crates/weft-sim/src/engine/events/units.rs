@@ -20,6 +20,7 @@
 //! from the executor: the counts of evaluations agree on every one.
 
 use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
 use weft_core::{StencilKey, NONE};
@@ -28,7 +29,7 @@ use super::far::{Checked, FarSet};
 use super::island::{Island, SegmentOutput, Shared};
 use super::{BINS_PER_RANK, BINS_PER_THREAD};
 use crate::clock::Tick;
-use crate::dormancy::SharedCaps;
+use crate::dormancy::{SharedCaps, BREAKPOINTS_PER_WAKE};
 use crate::executor::Executor;
 use crate::trace;
 use crate::world::World;
@@ -74,6 +75,15 @@ pub(super) struct Units {
     /// its own caps), and those that broke them at the last internal tick.
     kinematic: SharedCaps,
     kinematic_woken: Vec<u32>,
+    /// Per unit, after its last visit: `Some(due)` when nothing of it was
+    /// awake (`due`: its next wake tick), the most breakpoints of its
+    /// vertices since they woke their stencils, and the internal ticks it
+    /// was skipped since. With each vertex's speed cap (`caps`, the bits of
+    /// an `f64`), what tells that a unit would find nothing to do.
+    quiet: Vec<Option<Tick>>,
+    most_breakpoints: Vec<u32>,
+    skipped: Vec<u32>,
+    caps: Vec<AtomicU64>,
 }
 
 /// A unit to build: its dynamic vertices (ascending) and its stencils
@@ -100,6 +110,7 @@ impl Units {
             }
         }
         let cost = specs.iter().map(|s| s.1.len() as f64).collect();
+        let n_units = specs.len();
         // Every kinematic vertex of an active stencil (a unit built later
         // by a promotion reads only these).
         let mut kinematic: Vec<u32> = (w.layers.stencils.keys())
@@ -134,6 +145,10 @@ impl Units {
             events_at_depth,
             kinematic,
             kinematic_woken: Vec::new(),
+            quiet: vec![None; n_units],
+            most_breakpoints: vec![0; n_units],
+            skipped: vec![0; n_units],
+            caps: (0..w.num_vertices()).map(|_| AtomicU64::new(0)).collect(),
         }
     }
 
@@ -165,15 +180,19 @@ impl Units {
             counts.promoted += promote.len() as u64;
             self.promote(&promote, w, s);
         }
+        let visit = self.to_visit(w, (s, e), internal);
         let mut outputs = {
             let sh = with_caps(base, &self.far, &self.kinematic, &self.kinematic_woken);
-            run_bins(
+            let (reports, outputs) = run_bins(
                 exec,
                 &sh,
-                (&self.islands, &self.live, &mut self.cost),
+                (&self.islands, &visit, &mut self.cost),
+                (&self.skipped, &self.caps),
                 (s, e),
                 internal,
-            )
+            );
+            self.note_visits(&reports);
+            outputs
         };
         let _after = trace::span("far after");
         loop {
@@ -192,10 +211,15 @@ impl Units {
             counts.reruns += changed.len() as u64;
             let sh = with_caps(base, &self.far, &self.kinematic, &self.kinematic_woken);
             let islands = &self.islands;
+            let caps = &self.caps;
             let rerun = exec.map(changed.len(), &|k| {
                 let mut island = islands[changed[k] as usize].lock().expect("a unit's lock");
-                island.run_segment(exec, &sh, (s, e), internal)
+                let out = island.run_segment(exec, &sh, (s, e), internal);
+                island.publish_caps(caps);
+                (out, (changed[k], island.quiet()))
             });
+            let (rerun, reports): (Vec<_>, Vec<_>) = rerun.into_iter().unzip();
+            self.note_visits(&reports);
             outputs.retain(|(u, _)| !changed.contains(u) && !emptied.contains(u));
             for (&u, out) in changed.iter().zip(rerun) {
                 if let Some(out) = out {
@@ -230,6 +254,56 @@ impl Units {
             ..Default::default()
         });
         outputs
+    }
+
+    /// Which live units the segment `[s, e)` visits: a unit with a stencil
+    /// awake or due to wake in it, or — after an internal tick — one of
+    /// whose vertices broke its speed cap or reached its breakpoints'
+    /// limit, or any when a kinematic vertex broke its shared cap. The
+    /// others would find nothing to do: observing their vertices' new
+    /// velocities would wake nothing (only lower caps, which no
+    /// certificate needs), and every batch would read no stencil. They are
+    /// skipped, the internal tick's breakpoint counted for their next
+    /// visit.
+    fn to_visit(&mut self, w: &World, (s, e): (Tick, Tick), internal: bool) -> Vec<bool> {
+        let _ = s;
+        let last = if internal { e } else { e.saturating_sub(1) };
+        let units = self.islands.len();
+        let mut visit: Vec<bool> = (0..units)
+            .map(|u| self.live[u] && self.quiet[u].is_none_or(|due| due <= last))
+            .collect();
+        if self.after_internal {
+            let all = !self.kinematic_woken.is_empty();
+            for u in 0..units {
+                let limit = self.most_breakpoints[u] + self.skipped[u] + 1 >= BREAKPOINTS_PER_WAKE;
+                visit[u] |= self.live[u] && (all || limit);
+            }
+            for (i, &u) in self.unit_of_vertex.iter().enumerate() {
+                if u != NONE && !visit[u as usize] {
+                    let cap = f64::from_bits(self.caps[i].load(Ordering::Relaxed));
+                    // (the test `Dormancy::observe` makes)
+                    if !(w.v[i].length_squared() <= cap * cap) {
+                        visit[u as usize] = true;
+                    }
+                }
+            }
+            for u in 0..units {
+                if self.live[u] && !visit[u] {
+                    self.skipped[u] += 1;
+                }
+            }
+        }
+        visit
+    }
+
+    /// What the units visited reported (`Island::quiet`).
+    fn note_visits(&mut self, reports: &[Report]) {
+        for &(u, (due, most)) in reports {
+            let u = u as usize;
+            self.quiet[u] = due;
+            self.most_breakpoints[u] = most;
+            self.skipped[u] = 0;
+        }
     }
 
     /// Promotes the far stencils `fs` at tick `s` (the world holds the
@@ -322,6 +396,9 @@ impl Units {
                     self.islands.push(Mutex::default());
                     self.live.push(true);
                     self.cost.push(0.0);
+                    self.quiet.push(None);
+                    self.most_breakpoints.push(0);
+                    self.skipped.push(0);
                     (self.islands.len() - 1) as u32
                 }
             };
@@ -334,6 +411,9 @@ impl Units {
                 self.unit_of_vertex[i as usize] = slot;
             }
             self.cost[slot as usize] = cost + members.len() as f64 * 1e-9;
+            // (built awake: visited)
+            self.quiet[slot as usize] = None;
+            self.skipped[slot as usize] = 0;
             *self.islands[slot as usize].lock().expect("a unit") =
                 Island::of(vertices, members, w, s, &self.kinematic);
             changed.push(slot);
@@ -377,10 +457,11 @@ fn with_caps<'a>(
 fn run_bins<E: Executor>(
     exec: &E,
     shared: &Shared<'_>,
-    (islands, live, cost): (&[Mutex<Island>], &[bool], &mut [f64]),
+    (islands, visit, cost): (&[Mutex<Island>], &[bool], &mut [f64]),
+    (skipped, caps): (&[u32], &[AtomicU64]),
     (s, e): (Tick, Tick),
     internal: bool,
-) -> Vec<(u32, SegmentOutput)> {
+) -> (Vec<Report>, Vec<(u32, SegmentOutput)>) {
     let _span = trace::span_with("islands", "islands", islands.len() as u64);
     let per_rank = if exec.ranks() == 1 {
         BINS_PER_THREAD * exec.threads_per_rank().max(1)
@@ -394,7 +475,7 @@ fn run_bins<E: Executor>(
     // more than their checks).
     let (mut busy, mut idle) = (Vec::new(), Vec::new());
     for k in 0..cost.len() {
-        match (live[k], cost[k] > IDLE_SECONDS) {
+        match (visit[k], cost[k] > IDLE_SECONDS) {
             (false, _) => {}
             (true, true) => busy.push(k as u32),
             (true, false) => idle.push(k as u32),
@@ -420,12 +501,16 @@ fn run_bins<E: Executor>(
         (bins[b].iter())
             .map(|&k| {
                 let mut island = islands[k as usize].lock().expect("an island's lock");
-                (k, island.run_segment(exec, shared, (s, e), internal))
+                island.catch_up(skipped[k as usize]);
+                let out = island.run_segment(exec, shared, (s, e), internal);
+                island.publish_caps(caps);
+                (k, out, island.quiet())
             })
             .collect::<Vec<_>>()
     });
-    let mut mine = Vec::new();
-    for (k, output) in binned.into_iter().flatten() {
+    let (mut mine, mut reports) = (Vec::new(), Vec::new());
+    for (k, output, quiet) in binned.into_iter().flatten() {
+        reports.push((k, quiet));
         match output {
             Some(output) => {
                 cost[k as usize] = output.seconds;
@@ -435,5 +520,8 @@ fn run_bins<E: Executor>(
         }
     }
     mine.sort_unstable_by_key(|m| m.0);
-    mine
+    (reports, mine)
 }
+
+/// What a visited unit reported: its index and `Island::quiet`.
+type Report = (u32, (Option<Tick>, u32));
