@@ -180,7 +180,7 @@ impl Units {
             counts.promoted += promote.len() as u64;
             self.promote(&promote, w, s);
         }
-        let visit = self.to_visit(w, (s, e), internal);
+        let visit = self.units_to_visit(w, e, internal);
         let mut outputs = {
             let sh = with_caps(base, &self.far, &self.kinematic, &self.kinematic_woken);
             let (reports, outputs) = run_bins(
@@ -256,7 +256,7 @@ impl Units {
         outputs
     }
 
-    /// Which live units the segment `[s, e)` visits: a unit with a stencil
+    /// Which live units the segment ending at `e` visits: a unit with a stencil
     /// awake or due to wake in it, or — after an internal tick — one of
     /// whose vertices broke its speed cap or reached its breakpoints'
     /// limit, or any when a kinematic vertex broke its shared cap. The
@@ -265,8 +265,7 @@ impl Units {
     /// certificate needs), and every batch would read no stencil. They are
     /// skipped, the internal tick's breakpoint counted for their next
     /// visit.
-    fn to_visit(&mut self, w: &World, (s, e): (Tick, Tick), internal: bool) -> Vec<bool> {
-        let _ = s;
+    fn units_to_visit(&mut self, w: &World, e: Tick, internal: bool) -> Vec<bool> {
         let last = if internal { e } else { e.saturating_sub(1) };
         let units = self.islands.len();
         let mut visit: Vec<bool> = (0..units)
