@@ -1944,6 +1944,32 @@ fn a_layer_deeper_than_the_lattice_resolves_is_an_error() {
     panic!("the stencil at the deepest resolved layer was never reported again");
 }
 
+/// An engine of `s` with its skips, and one evaluating every layer event.
+fn with_and_without_skips(s: &WorldSpec) -> (Engine<Serial>, Engine<Serial>) {
+    let fast = engine(s);
+    let mut full = engine(s);
+    full.evaluate_every_layer_event(true);
+    (fast, full)
+}
+
+/// Steps both a window and asserts the same positions, velocities, clocks,
+/// layers, layer events and kicks.
+fn same_window(
+    fast: &mut Engine<Serial>,
+    full: &mut Engine<Serial>,
+    what: &str,
+) -> (WindowStats, WindowStats) {
+    let a = fast.step_window().unwrap();
+    let b = full.step_window().unwrap();
+    assert_eq!(fast.world.x, full.world.x, "{what}: positions");
+    assert_eq!(fast.world.v, full.world.v, "{what}: velocities");
+    assert_eq!(fast.world.tau, full.world.tau, "{what}: clocks");
+    assert_eq!(fast.world.layers, full.world.layers, "{what}: layers");
+    let counts = |s: &WindowStats| (s.layer_events, s.layer_kicks);
+    assert_eq!(counts(&a), counts(&b), "{what}: layer events and kicks");
+    (a, b)
+}
+
 /// Asleep stencils and layer events skipped by a distance bound kick zero,
 /// so skipping them leaves the same bits: on random scenes (two small
 /// cloths falling at random tilts and speeds onto a sphere and onto each
@@ -1968,21 +1994,9 @@ fn skipped_layer_events_give_the_bits_of_full_evaluation() {
         let mut s = spec(objects, DVec3::new(0.0, 0.0, -9.81), 20);
         s.contact.friction = if case % 2 == 0 { 0.0 } else { 0.4 };
         s.contact.layer1_step_shift = (case / 2) as u32;
-        let mut fast = engine(&s);
-        let mut full = engine(&s);
-        full.evaluate_every_layer_event(true);
+        let (mut fast, mut full) = with_and_without_skips(&s);
         for w in 0..25 {
-            let a = fast.step_window().unwrap();
-            let b = full.step_window().unwrap();
-            let what = format!("case {case}, window {w}");
-            assert_eq!(fast.world.x, full.world.x, "{what}: positions");
-            assert_eq!(fast.world.v, full.world.v, "{what}: velocities");
-            assert_eq!(fast.world.tau, full.world.tau, "{what}: clocks");
-            assert_eq!(fast.world.layers, full.world.layers, "{what}: layers");
-            assert_eq!(
-                (a.layer_events, a.layer_kicks),
-                (b.layer_events, b.layer_kicks)
-            );
+            let (a, b) = same_window(&mut fast, &mut full, &format!("case {case}, window {w}"));
             assert!(b.layer_evaluations <= b.layer_events);
             events += a.layer_events;
             evaluations += a.layer_evaluations;
@@ -2043,16 +2057,10 @@ fn a_kinematic_obstacle_that_speeds_up_wakes_the_stencils_asleep_against_it() {
             DVec3::ZERO,
             20,
         );
-        let mut fast = engine(&s);
-        let mut full = engine(&s);
-        full.evaluate_every_layer_event(true);
+        let (mut fast, mut full) = with_and_without_skips(&s);
         for w in 0..16 {
-            let a = fast.step_window().unwrap();
-            let b = full.step_window().unwrap();
             let what = format!("slow {slow} m/s, faster after {fast_at} windows, window {w}");
-            assert_eq!(fast.world.x, full.world.x, "{what}: positions");
-            assert_eq!(fast.world.v, full.world.v, "{what}: velocities");
-            assert_eq!(a.layer_kicks, b.layer_kicks, "{what}: kicks");
+            let (a, _) = same_window(&mut fast, &mut full, &what);
             kicks += a.layer_kicks;
         }
     }
