@@ -344,24 +344,25 @@ impl Island {
         &self.vertices
     }
 
-    /// After a segment: whether nothing is awake, and then the tick it is
+    /// After a visit: whether nothing is awake, and then the tick it is
     /// next due to wake (`Some(Tick::MAX)`: none); and the most breakpoints
-    /// any of its vertices has had since it last woke its stencils. With
-    /// its vertices' caps (`publish_caps`), what lets the units skip it
-    /// without a visit while nothing can wake it.
-    pub(super) fn quiet(&mut self) -> (Option<Tick>, u32) {
+    /// any of its vertices has had since it last woke its stencils. When
+    /// nothing is awake it also writes its vertices' speed caps into
+    /// `mirror` (by global vertex, the bits of an `f64`; the units' islands
+    /// hold disjoint vertices): what lets the units skip it without a visit
+    /// while nothing can wake it. (A unit with a stencil awake is visited
+    /// next time anyway: its caps are not read, and the giant island does
+    /// not write its tens of thousands at every segment.)
+    pub(super) fn report(&mut self, mirror: &[AtomicU64]) -> (Option<Tick>, u32) {
         let n = self.vertices.len();
         let due =
             (self.dormancy.max_reach() == 0).then(|| self.dormancy.next_due().unwrap_or(Tick::MAX));
-        (due, self.dormancy.most_breakpoints(n))
-    }
-
-    /// Writes its vertices' speed caps into `mirror` (by global vertex,
-    /// the bits of an `f64`; the units' islands hold disjoint vertices).
-    pub(super) fn publish_caps(&self, mirror: &[AtomicU64]) {
-        for (j, &i) in self.vertices.iter().enumerate() {
-            mirror[i as usize].store(self.dormancy.cap(j).to_bits(), Ordering::Relaxed);
+        if due.is_some() {
+            for (j, &i) in self.vertices.iter().enumerate() {
+                mirror[i as usize].store(self.dormancy.cap(j).to_bits(), Ordering::Relaxed);
+            }
         }
+        (due, self.dormancy.most_breakpoints(n))
     }
 
     /// Its vertices had `ticks` internal ticks' breakpoints while it was

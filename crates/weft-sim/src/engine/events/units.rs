@@ -215,8 +215,7 @@ impl Units {
             let rerun = exec.map(changed.len(), &|k| {
                 let mut island = islands[changed[k] as usize].lock().expect("a unit's lock");
                 let out = island.run_segment(exec, &sh, (s, e), internal);
-                island.publish_caps(caps);
-                (out, (changed[k], island.quiet()))
+                (out, (changed[k], island.report(caps)))
             });
             let (rerun, reports): (Vec<_>, Vec<_>) = rerun.into_iter().unzip();
             self.note_visits(&reports);
@@ -295,7 +294,7 @@ impl Units {
         visit
     }
 
-    /// What the units visited reported (`Island::quiet`).
+    /// What the units visited reported (`Island::report`).
     fn note_visits(&mut self, reports: &[Report]) {
         for &(u, (due, most)) in reports {
             let u = u as usize;
@@ -502,8 +501,7 @@ fn run_bins<E: Executor>(
                 let mut island = islands[k as usize].lock().expect("an island's lock");
                 island.catch_up(skipped[k as usize]);
                 let out = island.run_segment(exec, shared, (s, e), internal);
-                island.publish_caps(caps);
-                (k, out, island.quiet())
+                (k, out, island.report(caps))
             })
             .collect::<Vec<_>>()
     });
@@ -522,5 +520,5 @@ fn run_bins<E: Executor>(
     (reports, mine)
 }
 
-/// What a visited unit reported: its index and `Island::quiet`.
+/// What a visited unit reported: its index and `Island::report`.
 type Report = (u32, (Option<Tick>, u32));
