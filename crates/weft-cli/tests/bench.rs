@@ -357,9 +357,10 @@ fn bench_projects_more_ranks_from_the_replayed_steps() {
         assert!(o.status.success(), "bench failed: {}", stderr(&o));
         let out = String::from_utf8_lossy(&o.stdout).to_string();
         assert!(out.contains("a model, not a measurement"), "{out}");
-        last_json(&o)["projection"].clone()
+        last_json(&o)
     };
-    let fast = run("25");
+    let fast_report = run("25");
+    let fast = fast_report["projection"].clone();
     let replayed = fast["replayed"].as_array().unwrap();
     assert_eq!(replayed.len(), 2, "{fast}");
     for r in replayed {
@@ -388,7 +389,18 @@ fn bench_projects_more_ranks_from_the_replayed_steps() {
         projected[0][0]["collectives"], 0.0,
         "one rank talks to no one"
     );
-    let slow = run("0.01");
+    // One rank is the measured one process, not the fit over 2 and 3 ranks
+    // (which counts the work every rank of a run over ranks repeats).
+    assert_eq!(projected[0][0]["measured"], true, "{fast}");
+    assert_eq!(projected[1][0]["measured"], false, "{fast}");
+    let one = (fast_report["results"].as_array().unwrap().iter())
+        .find(|t| t["ranks"] == 1)
+        .expect("the 1-rank run");
+    assert_eq!(
+        projected[0][0]["seconds"], one["wall_seconds_per_window"],
+        "{fast_report}"
+    );
+    let slow = run("0.01")["projection"].clone();
     let at64 = |j: &serde_json::Value| j["projected"][3][0]["collectives"].as_f64().unwrap();
     assert!(
         at64(&slow) > at64(&fast),

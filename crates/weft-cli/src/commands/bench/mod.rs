@@ -794,11 +794,8 @@ fn projection(
         let iv = project::intervals(&s.steps).map_err(|e| anyhow::anyhow!("{ranks} ranks: {e}"))?;
         measured.push((*ranks, iv));
     }
-    let t1 = r
-        .results
-        .iter()
-        .find(|t| t.ranks == 1)
-        .map(|t| t.cpu_sum_seconds_per_window);
+    let one = r.results.iter().find(|t| t.ranks == 1);
+    let t1 = one.map(|t| t.cpu_sum_seconds_per_window);
     let projected = project::project(&measured, targets, &net)
         .map_err(|e| anyhow::anyhow!(e))?
         .into_iter()
@@ -809,6 +806,19 @@ fn projection(
             p.collectives /= windows;
             p.point_to_point /= windows;
             p.seconds /= windows;
+            if let (1, Some(one)) = (p.ranks, one) {
+                // One rank is one process, measured: the model is of runs
+                // over ranks (`project.rs`).
+                let wall = one.wall_seconds_per_window;
+                p = project::Projected {
+                    ranks: 1,
+                    seconds: wall,
+                    work: wall,
+                    collectives: 0.0,
+                    point_to_point: 0.0,
+                    measured: true,
+                };
+            }
             let e = t1.map(|t1| t1 / (p.ranks as f64 * p.seconds));
             (p, e)
         })
@@ -1395,13 +1405,18 @@ fn table(r: &BenchReport) -> String {
         for (q, e) in &p.projected {
             let _ = writeln!(
                 s,
-                "  {:>5} {:>10} {:>5} {:>12} {:>15} {:>11}",
+                "  {:>5} {:>10} {:>5} {:>12} {:>15} {:>11}{}",
                 q.ranks,
                 ms(q.seconds),
                 ms(q.work),
                 ms(q.collectives),
                 ms(q.point_to_point),
-                e.map_or("—".into(), |e| format!("{:.0} %", 100.0 * e))
+                e.map_or("—".into(), |e| format!("{:.0} %", 100.0 * e)),
+                if q.measured {
+                    "  (measured: one process, not modelled)"
+                } else {
+                    ""
+                }
             );
         }
     }
