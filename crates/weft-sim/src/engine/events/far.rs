@@ -73,8 +73,12 @@ use crate::world::World;
 /// checked on its own.
 const RENEW_AFTER_BREAKPOINTS: u32 = BREAKPOINTS_PER_WAKE / 2;
 
-/// Far stencils per task when they are certified again.
-const RENEW_RUN: usize = 128;
+/// Far stencils per task when they are certified again (a segment renews
+/// a few hundred: small tasks keep many threads busy).
+const RENEW_RUN: usize = 32;
+
+/// Far vertices per task of the speed-cap check after an internal tick.
+const CAP_CHECK_RUN: usize = 1024;
 
 /// The far stencils of a pass, their certificates and their vertices'
 /// speed caps.
@@ -92,10 +96,18 @@ pub(super) struct FarSet {
     offsets: Vec<u32>,
     of_vertex: Vec<u32>,
     /// Per vertex: its speed cap (`+inf` for a vertex of no far stencil of
-    /// this rank, so no island reports it) and its breakpoints since its
-    /// watchers' certificates were last renewed.
+    /// this rank, so no island reports it).
     cap: Vec<f64>,
-    since: Vec<u32>,
+    /// A vertex's breakpoints since its watchers' certificates were last
+    /// renewed are `clock - base[i]` ([`FarSet::since`]): `clock` counts the
+    /// pass's internal ticks (each may give every vertex a breakpoint),
+    /// `base` goes down by the breakpoints islands add. So an internal tick
+    /// counts for every far vertex without a visit of each; `renew_at`
+    /// holds when each vertex's count reaches [`RENEW_AFTER_BREAKPOINTS`]
+    /// (stale entries are skipped).
+    clock: i64,
+    base: Vec<i64>,
+    renew_at: BinaryHeap<Reverse<(i64, u32)>>,
     /// The vertices of this rank's far stencils, ascending.
     vertices: Vec<u32>,
     /// Certificate ends `(until, stencil)`; stale entries (promoted, or
@@ -219,7 +231,7 @@ impl FarSet {
         }
         let mut set = FarSet {
             cap,
-            since: vec![0; n],
+            base: vec![0; n],
             fastest: vec![0.0; n],
             added: vec![0; n],
             pass_end,
@@ -273,6 +285,8 @@ impl FarSet {
                 set.vertices.push(i as u32);
             }
         }
+        let limit = i64::from(RENEW_AFTER_BREAKPOINTS);
+        set.renew_at = set.vertices.iter().map(|&i| Reverse((limit, i))).collect();
         (set, is_far)
     }
 
@@ -298,6 +312,28 @@ impl FarSet {
         &self.of_vertex[self.offsets[i] as usize..self.offsets[i + 1] as usize]
     }
 
+    /// Vertex `i`'s breakpoints since its watchers were last certified.
+    fn since(&self, i: usize) -> i64 {
+        self.clock - self.base[i]
+    }
+
+    /// Vertex `i`'s count starts again, its watchers to be certified again
+    /// at this segment's start.
+    fn restart(&mut self, i: u32) {
+        let iu = i as usize;
+        self.base[iu] = self.clock;
+        self.schedule_renewal(i);
+        let (a, b) = (self.offsets[iu] as usize, self.offsets[iu + 1] as usize);
+        self.renew.extend_from_slice(&self.of_vertex[a..b]);
+    }
+
+    /// Notes when vertex `i`'s count reaches the limit if nothing else
+    /// changes it.
+    fn schedule_renewal(&mut self, i: u32) {
+        let at = self.base[i as usize] + i64::from(RENEW_AFTER_BREAKPOINTS);
+        self.renew_at.push(Reverse((at, i)));
+    }
+
     /// Step 1, at the start `s` of a segment ending at `e`: shows the
     /// velocities an internal tick gave to the caps, counts its breakpoint,
     /// and certifies again every far stencil that needs it. Returns those
@@ -315,23 +351,32 @@ impl FarSet {
             return Vec::new();
         }
         if after_internal {
-            for k in 0..self.vertices.len() {
-                let i = self.vertices[k] as usize;
-                let v = w.v[i];
-                let mut renew = false;
-                if v.length_squared() > self.cap[i] * self.cap[i] {
-                    self.cap[i] = cap_of(v);
-                    renew = true;
+            // Every internal tick may give each vertex a breakpoint.
+            self.clock += 1;
+            // The far vertices whose new speed breaks their cap, found on
+            // the executor (reads only), then given caps of their speeds.
+            let (vertices, cap) = (&self.vertices, &self.cap);
+            let broke = exec.map(vertices.len().div_ceil(CAP_CHECK_RUN), &|r| {
+                let run =
+                    &vertices[r * CAP_CHECK_RUN..((r + 1) * CAP_CHECK_RUN).min(vertices.len())];
+                (run.iter().copied())
+                    .filter(|&i| {
+                        w.v[i as usize].length_squared() > cap[i as usize] * cap[i as usize]
+                    })
+                    .collect::<Vec<u32>>()
+            });
+            for i in broke.into_iter().flatten() {
+                self.cap[i as usize] = cap_of(w.v[i as usize]);
+                self.restart(i);
+            }
+            // Those whose breakpoints reached the limit.
+            while let Some(&Reverse((at, i))) = self.renew_at.peek() {
+                if at > self.clock {
+                    break;
                 }
-                // Every internal tick may give the vertex a breakpoint.
-                self.since[i] += 1;
-                if self.since[i] >= RENEW_AFTER_BREAKPOINTS {
-                    renew = true;
-                }
-                if renew {
-                    self.since[i] = 0;
-                    let (a, b) = (self.offsets[i] as usize, self.offsets[i + 1] as usize);
-                    self.renew.extend_from_slice(&self.of_vertex[a..b]);
+                self.renew_at.pop();
+                if self.since(i as usize) >= i64::from(RENEW_AFTER_BREAKPOINTS) {
+                    self.restart(i);
                 }
             }
         }
@@ -420,7 +465,8 @@ impl FarSet {
         for &i in &self.touched {
             let iu = i as usize;
             let broke = self.fastest[iu] > self.cap[iu] * self.cap[iu];
-            if broke || self.since[iu] + self.added[iu] >= RENEW_AFTER_BREAKPOINTS {
+            let since = self.since(iu) + i64::from(self.added[iu]);
+            if broke || since >= i64::from(RENEW_AFTER_BREAKPOINTS) {
                 doubtful.extend_from_slice(self.watchers(iu));
             }
         }
@@ -461,14 +507,19 @@ impl FarSet {
     /// the segment, which they survived) are certified again at the next
     /// segment start.
     pub(super) fn commit(&mut self) {
-        for &i in &self.touched {
+        for k in 0..self.touched.len() {
+            let i = self.touched[k];
             let iu = i as usize;
             if self.fastest[iu] > self.cap[iu] * self.cap[iu] {
                 self.cap[iu] = HEADROOM * self.fastest[iu].sqrt();
             }
-            self.since[iu] += self.added[iu];
-            if self.since[iu] >= RENEW_AFTER_BREAKPOINTS {
-                self.since[iu] = 0;
+            if self.added[iu] > 0 {
+                self.base[iu] -= i64::from(self.added[iu]);
+                if self.since(iu) >= i64::from(RENEW_AFTER_BREAKPOINTS) {
+                    // (its watchers were checked, `passed`)
+                    self.base[iu] = self.clock;
+                }
+                self.schedule_renewal(i);
             }
         }
         self.renew.append(&mut self.passed);

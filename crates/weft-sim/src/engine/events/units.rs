@@ -19,7 +19,8 @@
 //! Every choice here (units, promotions, reruns) follows from the state, not
 //! from the executor: the counts of evaluations agree on every one.
 
-use std::collections::BTreeMap;
+use std::cmp::Reverse;
+use std::collections::{BTreeMap, BinaryHeap};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
@@ -180,7 +181,7 @@ impl Units {
             counts.promoted += promote.len() as u64;
             self.promote(&promote, w, s);
         }
-        let visit = self.units_to_visit(w, e, internal);
+        let visit = self.units_to_visit(exec, w, e, internal);
         let mut outputs = {
             let sh = with_caps(base, &self.far, &self.kinematic, &self.kinematic_woken);
             let (reports, outputs) = run_bins(
@@ -264,7 +265,13 @@ impl Units {
     /// certificate needs), and every batch would read no stencil. They are
     /// skipped, the internal tick's breakpoint counted for their next
     /// visit.
-    fn units_to_visit(&mut self, w: &World, e: Tick, internal: bool) -> Vec<bool> {
+    fn units_to_visit<E: Executor>(
+        &mut self,
+        exec: &E,
+        w: &World,
+        e: Tick,
+        internal: bool,
+    ) -> Vec<bool> {
         let last = if internal { e } else { e.saturating_sub(1) };
         let units = self.islands.len();
         let mut visit: Vec<bool> = (0..units)
@@ -276,14 +283,26 @@ impl Units {
                 let limit = self.most_breakpoints[u] + self.skipped[u] + 1 >= BREAKPOINTS_PER_WAKE;
                 visit[u] |= self.live[u] && (all || limit);
             }
-            for (i, &u) in self.unit_of_vertex.iter().enumerate() {
-                if u != NONE && !visit[u as usize] {
-                    let cap = f64::from_bits(self.caps[i].load(Ordering::Relaxed));
-                    // (the test `Dormancy::observe` makes)
-                    if !(w.v[i].length_squared() <= cap * cap) {
-                        visit[u as usize] = true;
+            // The units of the vertices whose new speed breaks their cap,
+            // found on the executor (reads only).
+            let (of_vertex, caps, seen) = (&self.unit_of_vertex, &self.caps, &visit);
+            let n = of_vertex.len();
+            let broke = exec.map(n.div_ceil(CAP_CHECK_RUN), &|r| {
+                let mut units = Vec::new();
+                for i in r * CAP_CHECK_RUN..((r + 1) * CAP_CHECK_RUN).min(n) {
+                    let u = of_vertex[i];
+                    if u != NONE && !seen[u as usize] && units.last() != Some(&u) {
+                        let cap = f64::from_bits(caps[i].load(Ordering::Relaxed));
+                        // (the test `Dormancy::observe` makes)
+                        if !(w.v[i].length_squared() <= cap * cap) {
+                            units.push(u);
+                        }
                     }
                 }
+                units
+            });
+            for u in broke.into_iter().flatten() {
+                visit[u as usize] = true;
             }
             for u in 0..units {
                 if self.live[u] && !visit[u] {
@@ -422,6 +441,9 @@ impl Units {
     }
 }
 
+/// Vertices per task of the speed-cap check after an internal tick.
+const CAP_CHECK_RUN: usize = 1024;
+
 /// The cost of a unit whose last segment was idle.
 const IDLE_SECONDS: f64 = 1e-7;
 
@@ -484,12 +506,17 @@ fn run_bins<E: Executor>(
             .total_cmp(&cost[a as usize])
             .then(a.cmp(&b))
     });
+    // The least-loaded bin (the lowest of equal loads) from a heap: a scan
+    // of every bin per unit cost more than the dealing saved at 16 threads.
+    // (Costs are finite and non-negative, so their bits order as they do.)
+    let mut least: BinaryHeap<Reverse<(u64, usize)>> = (0..per_rank)
+        .map(|b| Reverse((0f64.to_bits(), b)))
+        .collect();
     for k in busy {
-        let b = (0..per_rank)
-            .min_by(|&a, &b| load[a].total_cmp(&load[b]).then(a.cmp(&b)))
-            .expect("a bin");
+        let Reverse((_, b)) = least.pop().expect("a bin");
         load[b] += cost[k as usize];
         bins[b].push(k);
+        least.push(Reverse((load[b].to_bits(), b)));
     }
     for (n, k) in idle.into_iter().enumerate() {
         bins[n % per_rank].push(k);
