@@ -522,7 +522,8 @@ impl<E: Executor> Engine<E> {
             let listed: Vec<(StencilKey, u32, u32)> = (candidates.iter())
                 .map(|&a| (active[a].0, active[a].1, pack_of[a]))
                 .collect();
-            let (far, is_far) = FarSet::new(w, &listed, &mine, (t0, t0 + h_el, t1), &mut checked);
+            let pass = (t0, t0 + h_el, t1);
+            let (far, is_far) = FarSet::new(&self.exec, w, &listed, &mine, pass, &mut checked);
             let mut near = vec![true; active.len()];
             for (&a, &f) in candidates.iter().zip(&is_far) {
                 near[a] = !f;

@@ -179,7 +179,7 @@ impl Units {
         if !promote.is_empty() {
             let _span = trace::span("far promote");
             counts.promoted += promote.len() as u64;
-            self.promote(&promote, w, s);
+            self.promote(exec, &promote, w, s);
         }
         let visit = self.units_to_visit(exec, w, e, internal);
         let mut outputs = {
@@ -207,7 +207,7 @@ impl Units {
                 break;
             }
             counts.promoted += promote.len() as u64;
-            let (changed, emptied) = self.promote(&promote, w, s);
+            let (changed, emptied) = self.promote(exec, &promote, w, s);
             let _span = trace::span_with("island rerun", "units", changed.len() as u64);
             counts.reruns += changed.len() as u64;
             let sh = with_caps(base, &self.far, &self.kinematic, &self.kinematic_woken);
@@ -329,7 +329,13 @@ impl Units {
     /// vertex join the same new unit. Returns the new units (each in the
     /// slot of the lowest unit it merged, or a new slot) and the units
     /// emptied into them.
-    fn promote(&mut self, fs: &[u32], w: &World, s: Tick) -> (Vec<u32>, Vec<u32>) {
+    fn promote<E: Executor>(
+        &mut self,
+        exec: &E,
+        fs: &[u32],
+        w: &World,
+        s: Tick,
+    ) -> (Vec<u32>, Vec<u32>) {
         // What each stencil joins: units (`u`) and loose vertices
         // (`1 << 32 | i`), grouped by union over the stencils.
         #[derive(Default)]
@@ -381,6 +387,9 @@ impl Units {
             target.stencils.push(f);
         }
         let (mut changed, mut emptied) = (Vec::new(), Vec::new());
+        // Each group's new unit: its slot, vertices and members (merged
+        // here, built on the executor below).
+        let mut built: Vec<Mutex<Option<(Vec<u32>, Vec<(StencilKey, u32)>)>>> = Vec::new();
         for group in groups.into_iter().flatten() {
             let mut units: Vec<u32> = (group.joins.iter())
                 .filter(|&&j| j >> 32 == 0)
@@ -404,9 +413,6 @@ impl Units {
                 members.extend(island.members());
                 cost += self.cost[u as usize];
             }
-            vertices.sort_unstable();
-            vertices.dedup();
-            members.sort_unstable_by_key(|m| m.0);
             let slot = match units.first() {
                 Some(&u) => u,
                 None => {
@@ -431,9 +437,20 @@ impl Units {
             // (built awake: visited)
             self.quiet[slot as usize] = None;
             self.skipped[slot as usize] = 0;
-            *self.islands[slot as usize].lock().expect("a unit") =
-                Island::of(vertices, members, w, s, &self.kinematic);
+            built.push(Mutex::new(Some((vertices, members))));
             changed.push(slot);
+        }
+        let kinematic = &self.kinematic;
+        let islands = exec.map(built.len(), &|g| {
+            let (mut vertices, mut members) =
+                (built[g].lock().expect("a group").take()).expect("built once");
+            vertices.sort_unstable();
+            vertices.dedup();
+            members.sort_unstable_by_key(|m| m.0);
+            Island::of(vertices, members, w, s, kinematic)
+        });
+        for (&slot, island) in changed.iter().zip(islands) {
+            *self.islands[slot as usize].lock().expect("a unit") = island;
         }
         changed.sort_unstable();
         emptied.sort_unstable();
@@ -532,7 +549,8 @@ fn run_bins<E: Executor>(
             })
             .collect::<Vec<_>>()
     });
-    let (mut mine, mut reports) = (Vec::new(), Vec::new());
+    let visited = binned.iter().map(Vec::len).sum();
+    let (mut mine, mut reports) = (Vec::with_capacity(visited), Vec::with_capacity(visited));
     for (k, output, quiet) in binned.into_iter().flatten() {
         reports.push((k, quiet));
         match output {
@@ -543,8 +561,21 @@ fn run_bins<E: Executor>(
             None => cost[k as usize] = IDLE_SECONDS,
         }
     }
-    mine.sort_unstable_by_key(|m| m.0);
-    (reports, mine)
+    (reports, by_unit(mine))
+}
+
+/// `outputs` in unit order. An output is large, and a sort moves each many
+/// times (on the 50k twister, 2,400 a segment took 40 ms a window): the
+/// indices are sorted, and each output moved twice.
+fn by_unit(outputs: Vec<(u32, SegmentOutput)>) -> Vec<(u32, SegmentOutput)> {
+    let mut order: Vec<(u32, u32)> = (outputs.iter().enumerate())
+        .map(|(j, o)| (o.0, j as u32))
+        .collect();
+    order.sort_unstable();
+    let mut slots: Vec<Option<(u32, SegmentOutput)>> = outputs.into_iter().map(Some).collect();
+    (order.iter())
+        .map(|&(_, j)| slots[j as usize].take().expect("each output once"))
+        .collect()
 }
 
 /// What a visited unit reported: its index and `Island::report`.
