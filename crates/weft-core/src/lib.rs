@@ -28,6 +28,28 @@ pub use validate::{validate, MeshError, MeshWarning, MAX_COORDINATE};
 /// The one floating-point type of weft.
 pub type Real = f64;
 
+/// The smaller of `a` and `b`, or NaN if either is one. `f64::min` drops a
+/// NaN, and a bound folded that way would lose the NaN that must make it
+/// certify nothing.
+#[inline]
+pub fn nan_min(a: f64, b: f64) -> f64 {
+    if a < b || a.is_nan() {
+        a
+    } else {
+        b
+    }
+}
+
+/// The larger of `a` and `b`, or NaN if either is one (see [`nan_min`]).
+#[inline]
+pub fn nan_max(a: f64, b: f64) -> f64 {
+    if a > b || a.is_nan() {
+        a
+    } else {
+        b
+    }
+}
+
 /// Marker for "no such element" in `u32` index arrays (e.g. the missing face of a
 /// boundary edge).
 pub const NONE: u32 = u32::MAX;

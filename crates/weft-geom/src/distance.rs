@@ -71,7 +71,7 @@ mod vertex_face;
 pub use edge_edge::edge_edge;
 pub use vertex_face::vertex_face;
 
-use weft_core::{DVec3, StencilKind};
+use weft_core::{nan_max, nan_min, DVec3, StencilKind};
 
 /// Closest-point data of a stencil.
 ///
@@ -290,11 +290,9 @@ pub fn separation_lower_bound(kind: StencilKind, n: Direction, x: &[DVec3; 4]) -
     let t = [0.0, n.dot(d[0]), n.dot(d[1]), n.dot(d[2])];
     let s = d.iter().map(|v| v.abs().element_sum()).sum::<f64>();
     // (`f64::min`/`max` would drop a NaN: it must stay)
-    let lower = |a: f64, b: f64| if a < b || a.is_nan() { a } else { b };
-    let upper = |a: f64, b: f64| if a > b || a.is_nan() { a } else { b };
     let g = match kind {
-        StencilKind::VertexFace => t[0] - upper(upper(t[1], t[2]), t[3]),
-        StencilKind::EdgeEdge => lower(t[0], t[1]) - upper(t[2], t[3]),
+        StencilKind::VertexFace => t[0] - nan_max(nan_max(t[1], t[2]), t[3]),
+        StencilKind::EdgeEdge => nan_min(t[0], t[1]) - nan_max(t[2], t[3]),
     };
     g - (f64::powi(2.0, -50) * (s + g.abs()) + f64::MIN_POSITIVE)
 }

@@ -19,7 +19,7 @@ use std::time::Instant;
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
-use weft_core::{StencilKey, StencilKind, NONE};
+use weft_core::{nan_max, StencilKey, StencilKind, NONE};
 use weft_geom::distance::{separation_lower_bound, stencil_closest, Closest, Direction};
 
 use crate::clock::Tick;
@@ -104,8 +104,7 @@ pub(super) fn sleep(
     }
     // (a NaN cap stays NaN, and then certifies nothing: `f64::max` would
     // drop it and leave the other caps)
-    let largest = |m: f64, c: f64| if c > m || c.is_nan() { c } else { m };
-    let cap = |r: std::ops::Range<usize>| r.map(|j| caps[j]).fold(0.0f64, largest);
+    let cap = |r: std::ops::Range<usize>| r.map(|j| caps[j]).fold(0.0f64, |m, c| nan_max(c, m));
     let s = (cap(0..split) + cap(split..4)) * (1.0 + f64::powi(2.0, -40)) * quantum;
     let ticks = room / s; // +inf when nothing moves
     let awake_at = if ticks >= (Tick::MAX - t) as f64 {
@@ -125,8 +124,23 @@ const PARALLEL_MIN_STENCILS: usize = 256;
 /// Stencils per task of a batch's scan and kicks on the executor.
 const PENALTY_RUN: usize = 128;
 
-/// The layer constants `(eta_l, k_l, h_l)` of the pass and what every
-/// island reads of the world (nothing it writes).
+/// What every island of a pass reads (nothing it writes): the world, the
+/// layer constants `(eta_l, k_l, h_l)`, and how batches run.
+#[derive(Clone, Copy)]
+pub(super) struct Pass<'a> {
+    pub world: &'a World,
+    pub layer_consts: &'a [(f64, f64, Tick)],
+    /// Evaluate every layer event exactly (no sleeping, no skip).
+    pub exhaustive: bool,
+    /// The end of the pass: the islands and their dormancy end there.
+    pub pass_end: Tick,
+    /// Split a batch of at least [`PARALLEL_MIN_STENCILS`] stencils over
+    /// the executor's threads (see [`Shared`]).
+    pub split_batches: bool,
+}
+
+/// What every island reads in a segment: the pass's [`Pass`], and the
+/// speed caps the units keep for it (`super::units`).
 pub(super) struct Shared<'a> {
     pub world: &'a World,
     pub layer_consts: &'a [(f64, f64, Tick)],
@@ -151,7 +165,26 @@ pub(super) struct Shared<'a> {
     pub kinematic_woken: &'a [u32],
 }
 
-impl Shared<'_> {
+impl<'a> Shared<'a> {
+    /// `pass` with the units' caps.
+    pub(super) fn new(
+        pass: &Pass<'a>,
+        far_cap: &'a [f64],
+        kinematic_caps: &'a [f64],
+        kinematic_woken: &'a [u32],
+    ) -> Self {
+        Shared {
+            world: pass.world,
+            layer_consts: pass.layer_consts,
+            exhaustive: pass.exhaustive,
+            pass_end: pass.pass_end,
+            split_batches: pass.split_batches,
+            far_cap,
+            kinematic_caps,
+            kinematic_woken,
+        }
+    }
+
     /// Layer `l`'s constants.
     fn layer(&self, l: u32) -> (f64, f64, Tick) {
         self.layer_consts[l as usize - 1]

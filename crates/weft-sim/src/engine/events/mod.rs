@@ -39,7 +39,7 @@ use crate::islands::Islands;
 use crate::trace;
 use crate::world::World;
 use far::{may_be_far, Checked, FarSet};
-use island::{SegmentOutput, Shared};
+use island::{Pass, SegmentOutput};
 use units::{FarCounts, UnitSpec, Units};
 
 /// Tasks per thread that the islands of a segment are dealt to on one
@@ -658,19 +658,16 @@ impl<E: Executor> Engine<E> {
             // (On every rank alike: no active stencil.)
             return Ok((Vec::new(), SegmentTotals::default(), CalmDone::Nothing));
         }
-        let shared = Shared {
+        let pass = Pass {
             world: &self.world,
             layer_consts,
             exhaustive: self.every_layer_event,
             pass_end: self.ws.pass_end,
             split_batches: true,
-            far_cap: &[],
-            kinematic_caps: &[],
-            kinematic_woken: &[],
         };
         let (ranks, me) = (self.exec.ranks(), self.exec.rank() as u32);
         let cpu = (ranks > 1).then(|| self.exec.work_cpu_seconds());
-        let outputs = (self.ws.units).segment(&self.exec, &shared, (s, e), internal);
+        let outputs = (self.ws.units).segment(&self.exec, &pass, (s, e), internal);
         let totals = SegmentTotals::of(&outputs);
         if ranks == 1 {
             return Ok((outputs, totals, CalmDone::Nothing));
@@ -759,15 +756,12 @@ impl<E: Executor> Engine<E> {
             world, exec, ws, ..
         } = self;
         let world = &*world;
-        let shared = Shared {
+        let pass = Pass {
             world,
             layer_consts,
             exhaustive: self.every_layer_event,
             pass_end: ws.pass_end,
             split_batches: false,
-            far_cap: &[],
-            kinematic_caps: &[],
-            kinematic_woken: &[],
         };
         let Workspace {
             units,
@@ -786,7 +780,7 @@ impl<E: Executor> Engine<E> {
         let _join = trace::span("islands and calm");
         exec.join(
             &mut || {
-                outputs = units.segment(exec, &shared, (s, e), true);
+                outputs = units.segment(exec, &pass, (s, e), true);
             },
             &mut || {
                 let clock = Instant::now();

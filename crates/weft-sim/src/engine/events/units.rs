@@ -27,7 +27,7 @@ use std::sync::Mutex;
 use weft_core::{StencilKey, NONE};
 
 use super::far::{Checked, FarSet};
-use super::island::{Island, SegmentOutput, Shared};
+use super::island::{Island, Pass, SegmentOutput, Shared};
 use super::{BINS_PER_RANK, BINS_PER_THREAD};
 use crate::clock::Tick;
 use crate::dormancy::{SharedCaps, BREAKPOINTS_PER_WAKE};
@@ -162,11 +162,11 @@ impl Units {
     pub(super) fn segment<E: Executor>(
         &mut self,
         exec: &E,
-        base: &Shared<'_>,
+        pass: &Pass<'_>,
         (s, e): (Tick, Tick),
         internal: bool,
     ) -> Vec<SegmentOutput> {
-        let w = base.world;
+        let w = pass.world;
         self.kinematic_woken.clear();
         if self.after_internal {
             // The internal tick gave the kinematic vertices new velocities.
@@ -183,7 +183,7 @@ impl Units {
         }
         let visit = self.units_to_visit(exec, w, e, internal);
         let mut outputs = {
-            let sh = with_caps(base, &self.far, &self.kinematic, &self.kinematic_woken);
+            let sh = with_caps(pass, &self.far, &self.kinematic, &self.kinematic_woken);
             let (reports, outputs) = run_bins(
                 exec,
                 &sh,
@@ -210,7 +210,7 @@ impl Units {
             let (changed, emptied) = self.promote(exec, &promote, w, s);
             let _span = trace::span_with("island rerun", "units", changed.len() as u64);
             counts.reruns += changed.len() as u64;
-            let sh = with_caps(base, &self.far, &self.kinematic, &self.kinematic_woken);
+            let sh = with_caps(pass, &self.far, &self.kinematic, &self.kinematic_woken);
             let islands = &self.islands;
             let caps = &self.caps;
             let rerun = exec.map(changed.len(), &|k| {
@@ -389,7 +389,7 @@ impl Units {
         let (mut changed, mut emptied) = (Vec::new(), Vec::new());
         // Each group's new unit: its slot, vertices and members (merged
         // here, built on the executor below).
-        let mut built: Vec<Mutex<Option<(Vec<u32>, Vec<(StencilKey, u32)>)>>> = Vec::new();
+        let mut built: Vec<Mutex<Option<UnitSpec>>> = Vec::new();
         for group in groups.into_iter().flatten() {
             let mut units: Vec<u32> = (group.joins.iter())
                 .filter(|&&j| j >> 32 == 0)
@@ -464,24 +464,15 @@ const CAP_CHECK_RUN: usize = 1024;
 /// The cost of a unit whose last segment was idle.
 const IDLE_SECONDS: f64 = 1e-7;
 
-/// What the units read: `base` with the far stencils' speed caps and the
+/// What the units read: `pass` with the far stencils' speed caps and the
 /// kinematic vertices' shared caps.
 fn with_caps<'a>(
-    base: &Shared<'a>,
+    pass: &Pass<'a>,
     far: &'a FarSet,
     kinematic: &'a SharedCaps,
     woken: &'a [u32],
 ) -> Shared<'a> {
-    Shared {
-        world: base.world,
-        layer_consts: base.layer_consts,
-        exhaustive: base.exhaustive,
-        pass_end: base.pass_end,
-        split_batches: base.split_batches,
-        far_cap: far.caps(),
-        kinematic_caps: kinematic.caps(),
-        kinematic_woken: woken,
-    }
+    Shared::new(pass, far.caps(), kinematic.caps(), woken)
 }
 
 /// The live units' segment `[s, e)` (and their kicks at the internal tick
