@@ -135,24 +135,16 @@ pub(super) struct Pass<'a> {
     /// The end of the pass: the islands and their dormancy end there.
     pub pass_end: Tick,
     /// Split a batch of at least [`PARALLEL_MIN_STENCILS`] stencils over
-    /// the executor's threads (see [`Shared`]).
+    /// the executor's threads (off while the calm part of the internal tick
+    /// runs beside the islands: it keeps the other threads busy, and a
+    /// giant island's batches handed to them only delayed it).
     pub split_batches: bool,
 }
 
 /// What every island reads in a segment: the pass's [`Pass`], and the
 /// speed caps the units keep for it (`super::units`).
 pub(super) struct Shared<'a> {
-    pub world: &'a World,
-    pub layer_consts: &'a [(f64, f64, Tick)],
-    /// Evaluate every layer event exactly (no sleeping, no skip).
-    pub exhaustive: bool,
-    /// The end of the pass: the islands and their dormancy end there.
-    pub pass_end: Tick,
-    /// Split a batch of at least [`PARALLEL_MIN_STENCILS`] stencils over
-    /// the executor's threads (off while the calm part of the internal tick
-    /// runs beside the islands: it keeps the other threads busy, and a
-    /// giant island's batches handed to them only delayed it).
-    pub split_batches: bool,
+    pub pass: Pass<'a>,
     /// Per vertex, the far stencils' speed cap (`super::far`; empty: no
     /// far stencil): a new speed above it is reported in
     /// [`SegmentOutput::fast`].
@@ -174,11 +166,7 @@ impl<'a> Shared<'a> {
         kinematic_woken: &'a [u32],
     ) -> Self {
         Shared {
-            world: pass.world,
-            layer_consts: pass.layer_consts,
-            exhaustive: pass.exhaustive,
-            pass_end: pass.pass_end,
-            split_batches: pass.split_batches,
+            pass: *pass,
             far_cap,
             kinematic_caps,
             kinematic_woken,
@@ -187,7 +175,7 @@ impl<'a> Shared<'a> {
 
     /// Layer `l`'s constants.
     fn layer(&self, l: u32) -> (f64, f64, Tick) {
-        self.layer_consts[l as usize - 1]
+        self.pass.layer_consts[l as usize - 1]
     }
 }
 
@@ -426,7 +414,7 @@ impl Island {
             // The internal tick before this segment gave every vertex a new
             // velocity (and a breakpoint): stencils whose vertices broke
             // their speed caps wake, the others' certificates stand.
-            let w = sh.world;
+            let w = sh.pass.world;
             for (j, &i) in self.vertices.iter().enumerate() {
                 self.dormancy.observe(j, w.v[i as usize]);
             }
@@ -571,7 +559,7 @@ impl Island {
         internal: bool,
         out: &mut SegmentOutput,
     ) -> Result<(), u32> {
-        let w = sh.world;
+        let w = sh.pass.world;
         let first = firing[0];
         let eta_first = sh.layer(first).0;
         // Phase 1: the closest-point data of the awake stencils of the
@@ -608,7 +596,7 @@ impl Island {
                 // it has been measured up to 2e-11 of the coordinates below
                 // (`weft_geom::distance`), where an evaluation could kick a
                 // stencil whose exact distance is outside.
-                if lower >= eta_first && !sh.exhaustive {
+                if lower >= eta_first && !sh.pass.exhaustive {
                     let n = this.vertices.len();
                     let caps = m.watch.map(|j| match (j as usize).checked_sub(n) {
                         None => this.dormancy.cap(j as usize),
@@ -637,7 +625,7 @@ impl Island {
             }
         };
         let list = &self.scan;
-        if sh.split_batches && list.len() >= PARALLEL_MIN_STENCILS {
+        if sh.pass.split_batches && list.len() >= PARALLEL_MIN_STENCILS {
             // A big batch (a giant island): its scan on the executor's
             // threads, in runs (Algorithm 4's node-level sharing).
             let _span = trace::span_with("penalty closest", "stencils", list.len() as u64);
@@ -662,7 +650,7 @@ impl Island {
                 Verdict::Doze(reach, until) => {
                     // Certified to the end of the pass (where the islands
                     // end): no wake tick to keep.
-                    let until = if until >= sh.pass_end {
+                    let until = if until >= sh.pass.pass_end {
                         Tick::MAX
                     } else {
                         until
@@ -708,7 +696,7 @@ impl Island {
             penalty_kick(eta_l, k_l, w.lattice.seconds(step), c, &v, &inv, m.mu)
         };
         let items = &self.kick_items;
-        if sh.split_batches && items.len() >= PARALLEL_MIN_STENCILS {
+        if sh.pass.split_batches && items.len() >= PARALLEL_MIN_STENCILS {
             let _span = trace::span_with("penalty kicks", "stencils", items.len() as u64);
             let parts = exec.map(items.len().div_ceil(PENALTY_RUN), &|r| {
                 let run = &items[r * PENALTY_RUN..((r + 1) * PENALTY_RUN).min(items.len())];
