@@ -299,7 +299,7 @@ impl Dormancy {
 pub fn speed_cap_rule(cap: &mut f64, since: &mut u32, v: DVec3) -> bool {
     *since += 1;
     let s2 = v.length_squared();
-    if !(s2 <= *cap * *cap) || *since >= BREAKPOINTS_PER_WAKE {
+    if breaks_cap(v, *cap) || *since >= BREAKPOINTS_PER_WAKE {
         // (a speed that is not finite gets an infinite cap: no certificate
         // then; NaN would read as 0 in `f64::max`)
         *cap = if s2 <= f64::MAX {
@@ -315,6 +315,14 @@ pub fn speed_cap_rule(cap: &mut f64, since: &mut u32, v: DVec3) -> bool {
         }
         false
     }
+}
+
+/// Whether velocity `v` breaks speed cap `cap`: its speed is above it or
+/// not finite (the test of [`speed_cap_rule`], which anything that skips
+/// the rule must make the same way).
+#[inline]
+pub fn breaks_cap(v: DVec3, cap: f64) -> bool {
+    !(v.length_squared() <= cap * cap)
 }
 
 /// Speed caps kept once for vertices that many islands watch: the

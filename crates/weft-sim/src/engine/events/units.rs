@@ -30,7 +30,7 @@ use super::far::{Checked, FarSet};
 use super::island::{Island, Pass, SegmentOutput, Shared};
 use super::{BINS_PER_RANK, BINS_PER_THREAD};
 use crate::clock::Tick;
-use crate::dormancy::{SharedCaps, BREAKPOINTS_PER_WAKE};
+use crate::dormancy::{breaks_cap, SharedCaps, BREAKPOINTS_PER_WAKE};
 use crate::executor::Executor;
 use crate::trace;
 use crate::world::World;
@@ -293,8 +293,7 @@ impl Units {
                     let u = of_vertex[i];
                     if u != NONE && !seen[u as usize] && units.last() != Some(&u) {
                         let cap = f64::from_bits(caps[i].load(Ordering::Relaxed));
-                        // (the test `Dormancy::observe` makes)
-                        if !(w.v[i].length_squared() <= cap * cap) {
+                        if breaks_cap(w.v[i], cap) {
                             units.push(u);
                         }
                     }
@@ -387,8 +386,8 @@ impl Units {
             target.stencils.push(f);
         }
         let (mut changed, mut emptied) = (Vec::new(), Vec::new());
-        // Each group's new unit: its slot, vertices and members (merged
-        // here, built on the executor below).
+        // Each group's new unit's vertices and members (merged here, in the
+        // order of `changed`; built on the executor below).
         let mut built: Vec<Mutex<Option<UnitSpec>>> = Vec::new();
         for group in groups.into_iter().flatten() {
             let mut units: Vec<u32> = (group.joins.iter())
