@@ -59,7 +59,7 @@ use weft_geom::distance::{separation_lower_bound, stencil_closest, Direction};
 
 use super::island::{sleep, SegmentOutput};
 use crate::clock::Tick;
-use crate::dormancy::{BREAKPOINTS_PER_WAKE, HEADROOM};
+use crate::dormancy::{breaks_cap, BREAKPOINTS_PER_WAKE, HEADROOM};
 use crate::executor::Executor;
 use crate::world::World;
 
@@ -433,9 +433,8 @@ impl FarSet {
                 let run =
                     &vertices[r * CAP_CHECK_RUN..((r + 1) * CAP_CHECK_RUN).min(vertices.len())];
                 (run.iter().copied())
-                    .filter(|&i| {
-                        w.v[i as usize].length_squared() > cap[i as usize] * cap[i as usize]
-                    })
+                    // (the units' test: a NaN speed breaks every cap)
+                    .filter(|&i| breaks_cap(w.v[i as usize], cap[i as usize]))
                     .collect::<Vec<u32>>()
             });
             for i in broke.into_iter().flatten() {
