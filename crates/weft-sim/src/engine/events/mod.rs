@@ -347,7 +347,6 @@ impl<E: Executor> Engine<E> {
             ..Default::default()
         };
         let begin = trace::span("pass begin");
-        self.traj.begin(t0, &self.world.x);
         let h_el = self.world.lattice.internal_step();
         // (room for every internal tick's breakpoint of a moving vertex was
         // made with the engine, `Engine::new`)
@@ -432,17 +431,60 @@ impl<E: Executor> Engine<E> {
             let w = &mut self.world;
             share.gather_states(&self.exec, &mut w.x, &mut w.v, &mut w.tau, &mut self.traj)?;
         }
-        self.traj.flush(&self.exec, &self.ws.vertex_runs);
-        let w = &mut self.world;
-        for i in 0..w.x.len() {
-            let p = Self::pos_at(w, i, end);
-            w.x[i] = p;
-            w.tau[i] = end;
-            self.traj
-                .record(i, end, p)
-                .map_err(|e| budget_error(w, t0, e))?;
-        }
+        self.drift_to(end, t0)?;
         Ok(counts)
+    }
+
+    /// Stores the staged breakpoints and drifts every vertex to `end` with
+    /// a breakpoint there, in runs of vertices on the executor (each
+    /// vertex's position and breakpoint are its own: the bits of one loop).
+    fn drift_to(&mut self, end: Tick, t0: Tick) -> Result<(), SimError> {
+        use crate::executor::split_chunks;
+        let w = &mut self.world;
+        let bounds = &self.ws.vertex_runs;
+        let quantum = w.lattice.quantum;
+        struct Run<'a> {
+            x: &'a mut [DVec3],
+            v: &'a [DVec3],
+            tau: &'a mut [Tick],
+            traj: crate::trajectory::TrajectoryRun<'a>,
+            added: usize,
+        }
+        let (x_runs, tau_runs) = (
+            split_chunks(&mut w.x, bounds),
+            split_chunks(&mut w.tau, bounds),
+        );
+        let v = &w.v;
+        let mut runs: Vec<Run<'_>> = (self.traj.runs(bounds, None).into_iter())
+            .zip(x_runs.into_iter().zip(tau_runs))
+            .enumerate()
+            .map(|(k, (traj, ((_, x), (_, tau))))| Run {
+                x,
+                v: &v[bounds[k]..bounds[k + 1]],
+                tau,
+                traj,
+                added: 0,
+            })
+            .collect();
+        self.exec.for_each_item(&mut runs, &|_, r| {
+            // (the staged ticks stored first, as `Trajectories::flush`)
+            r.traj.prepare();
+            for j in 0..r.x.len() {
+                // (`Engine::pos_at`)
+                let p = r.x[j] + r.v[j] * ((end - r.tau[j]) as f64 * quantum);
+                r.x[j] = p;
+                r.tau[j] = end;
+                r.added += usize::from(r.traj.record(j, end, p));
+            }
+        });
+        let added = runs.iter().map(|r| r.added).sum();
+        drop(runs);
+        let w = &self.world;
+        // (the error a breakpoint at a time would give: the first one over)
+        if !self.traj.fits(added) {
+            return Err(budget_error(w, t0, self.traj.over_budget(added)));
+        }
+        (self.traj.add_recorded(added)).map_err(|e| budget_error(w, t0, e))
     }
 
     /// The pass's contact islands, their units (all awake) and far
@@ -557,10 +599,20 @@ impl<E: Executor> Engine<E> {
                 .collect::<Vec<UnitSpec>>();
             (specs, FarSet::default())
         };
+        // The trajectories' start (every vertex's first breakpoint: a
+        // memory-bound loop) beside the units' states (a giant island's
+        // takes one thread).
+        let (traj, exec) = (&mut self.traj, &self.exec);
+        let mut args = Some((specs, far, checked, through));
+        let mut units = None;
+        exec.join(&mut || traj.begin(t0, &w.x), &mut || {
+            let (specs, far, checked, through) = args.take().expect("built once");
+            units = Some(Units::new(exec, w, specs, far, checked, t0, through));
+        });
         let ws = &mut self.ws;
         ws.pass_end = t1;
         ws.no_islands = packs.is_empty();
-        ws.units = Units::new(&self.exec, w, specs, far, checked, t0, through);
+        ws.units = units.expect("built");
         let over_ranks = self.share.is_some();
         ws.calm = (!packs.is_empty()).then(|| {
             let mut in_island = vec![false; w.num_vertices()];
