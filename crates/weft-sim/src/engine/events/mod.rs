@@ -490,7 +490,8 @@ impl<E: Executor> Engine<E> {
     /// The pass's contact islands, their units (all awake) and far
     /// stencils, and the counts that follow from the active set alone: the
     /// layer events of the window (each stencil of depth `d` at every tick
-    /// of layers `1..=d`) and the largest island's.
+    /// of layers `1..=d`) and the largest island's; beside the units, the
+    /// trajectories' start at `t0`.
     fn begin_islands(
         &mut self,
         active: &[(StencilKey, u32)],
