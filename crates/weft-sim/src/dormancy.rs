@@ -143,7 +143,14 @@ impl Dormancy {
     /// The stencils a batch whose outermost firing layer is `first` reads
     /// (reach at least `first`), unordered.
     pub fn reading(&self, first: u32) -> impl Iterator<Item = u32> + '_ {
-        (self.by_reach.iter().skip(first.max(1) as usize)).flat_map(|list| list.iter().copied())
+        self.reading_lists(first).flat_map(|list| list.iter().copied())
+    }
+
+    /// [`Dormancy::reading`] as the lists it is made of (copied whole, they
+    /// cost a batch less than one stencil at a time: with many small
+    /// islands, batches are many).
+    pub fn reading_lists(&self, first: u32) -> impl Iterator<Item = &[u32]> + '_ {
+        (self.by_reach.iter().skip(first.max(1) as usize)).map(Vec::as_slice)
     }
 
     /// The largest reach of any stencil (0: all asleep).

@@ -569,7 +569,9 @@ impl Island {
         self.dormancy.wake_due(t);
         self.scan.clear();
         let dormancy = &self.dormancy;
-        self.scan.extend(dormancy.reading(first));
+        for list in dormancy.reading_lists(first) {
+            self.scan.extend_from_slice(list);
+        }
         if self.scan.is_empty() {
             return Ok(()); // nothing read: nothing kicks
         }
