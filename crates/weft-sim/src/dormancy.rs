@@ -143,7 +143,8 @@ impl Dormancy {
     /// The stencils a batch whose outermost firing layer is `first` reads
     /// (reach at least `first`), unordered.
     pub fn reading(&self, first: u32) -> impl Iterator<Item = u32> + '_ {
-        self.reading_lists(first).flat_map(|list| list.iter().copied())
+        self.reading_lists(first)
+            .flat_map(|list| list.iter().copied())
     }
 
     /// [`Dormancy::reading`] as the lists it is made of (copied whole, they

@@ -115,7 +115,26 @@ impl<E: Executor> Engine<E> {
             self.fetch_trajectories(reads)?;
         }
         let w = &self.world;
-        let depths = w.layers.depths_of(candidates);
+        let depths = if ranks > 1 {
+            // Only the depths of this rank's tasks' candidates (the others
+            // are never read here): a merge walk over every candidate was
+            // work each rank repeated.
+            let me = self.exec.rank() as u32;
+            let mut mine: Vec<u32> = (0..order.len())
+                .filter(|&n| owner[n] == me)
+                .flat_map(|n| &tasks.order[tasks.tasks[order[n]].range.clone()])
+                .copied()
+                .collect();
+            mine.sort_unstable();
+            let keys: Vec<StencilKey> = mine.iter().map(|&c| candidates[c as usize]).collect();
+            let mut depths = vec![0; candidates.len()];
+            for (&c, d) in mine.iter().zip(w.layers.depths_of(&keys)) {
+                depths[c as usize] = d;
+            }
+            depths
+        } else {
+            w.layers.depths_of(candidates)
+        };
         let traj = &self.traj;
         let costs = &mut self.narrow_costs;
         let home = self.share.as_ref().map_or(&[][..], |s| &s.home[..]);

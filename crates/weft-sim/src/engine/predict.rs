@@ -435,11 +435,22 @@ impl<E: Executor> Engine<E> {
         // and every rank gets every answer.
         let extra = w.contact.layers_per_detection;
         let _decide = trace::span("predict decide");
-        let depths = w.layers.depths_of(&keys);
+        // (over ranks only the depths of this rank's keys, every `ranks`-th:
+        // a merge walk over every key was work each rank repeated)
+        let stride = ranks as usize;
+        let me = exec.rank();
+        let depths = match stride {
+            1 => w.layers.depths_of(&keys),
+            _ => {
+                let mine: Vec<StencilKey> = keys.iter().skip(me).step_by(stride).copied().collect();
+                w.layers.depths_of(&mine)
+            }
+        };
         let decided: Vec<Option<(u32, u32)>> =
             exec.map_on_ranks(keys.len(), &round_robin(keys.len()), &|n| {
                 let key = &keys[n];
-                let depth = depths[n];
+                debug_assert_eq!(n % stride, me, "round robin");
+                let depth = depths[n / stride];
                 let eta_next = w.schedule.eta(depth + 1);
                 if depth >= resolved {
                     return None;
