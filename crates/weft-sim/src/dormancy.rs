@@ -318,11 +318,27 @@ pub fn speed_cap_rule(cap: &mut f64, since: &mut u32, v: DVec3) -> bool {
         *since = 0;
         true
     } else {
-        if 4.0 * s2 < *cap * *cap {
+        if lowers_cap(s2, *cap) {
             *cap = s2.sqrt() * HEADROOM;
         }
         false
     }
+}
+
+/// Whether a speed² `s2` under cap `cap` lowers it in [`speed_cap_rule`]:
+/// the speed fell below half of the cap.
+#[inline]
+fn lowers_cap(s2: f64, cap: f64) -> bool {
+    4.0 * s2 < cap * cap
+}
+
+/// Whether [`speed_cap_rule`] would change cap `cap` with the new velocity
+/// `v` (raise it with a wake, or lower it): what an island that skips
+/// observing a velocity must rule out, so that the skip leaves every cap —
+/// and so every later certificate and count — as the observation would.
+#[inline]
+pub fn changes_cap(v: DVec3, cap: f64) -> bool {
+    breaks_cap(v, cap) || lowers_cap(v.length_squared(), cap)
 }
 
 /// Whether velocity `v` breaks speed cap `cap`: its speed is above it or

@@ -2067,6 +2067,68 @@ fn a_kinematic_obstacle_that_speeds_up_wakes_the_stencils_asleep_against_it() {
     assert!(kicks > 100, "too little contact: {kicks} kicks");
 }
 
+/// An island skipped while nothing of it is awake keeps the global
+/// schedule's bits and counts. A sheet bounces on a plate (its stencils with
+/// the plate asleep in flight, its island skipped at most internal ticks
+/// while gravity slows it and speeds it up again); beside it a sheet carried
+/// by a rising plate stays in contact, so the one island of the global
+/// schedule is visited, and every vertex observed, at every internal tick.
+/// Every island alone ends each window in the global schedule's positions,
+/// velocities and layers with its counts of layer events, exact evaluations
+/// and kicks: a skipped island must leave every speed cap as a visit would
+/// (`dormancy::changes_cap`), or its later certificates get other lengths.
+#[test]
+fn a_skipped_island_keeps_the_speed_caps_a_visit_would_leave() {
+    let plate = |x: f64| grid(DVec3::X * x, DVec3::X, DVec3::Y, [0.06, 0.06], [6, 6]);
+    let sheet = |x: f64, z: f64| {
+        grid(
+            DVec3::new(x, 0.0, z),
+            DVec3::X,
+            DVec3::Y,
+            [0.04, 0.04],
+            [6, 6],
+        )
+    };
+    let mut s = spec(
+        vec![
+            ObjectSpec {
+                kind: ObjectKind::Obstacle {
+                    motion: Motion::Translate {
+                        velocity: DVec3::Z * 0.02,
+                        until: None,
+                    },
+                },
+                ..obstacle("lifting plate", plate(0.0))
+            },
+            cloth("carried", sheet(0.0, 0.95e-3), DVec3::Z * 0.02),
+            obstacle("launch plate", plate(0.2)),
+            cloth("thrown", sheet(0.2, 3e-3), DVec3::Z * -0.3),
+        ],
+        DVec3::new(0.0, 0.0, -9.81),
+        20,
+    );
+    // (the thrown sheet's stencils stay active through its flight)
+    s.contact.retire_after_windows = 1000;
+    let (mut islands, mut global) = (engine(&s), engine(&s));
+    islands.set_island_packing(1);
+    global.run_as_one_island(true);
+    let (mut evaluations, mut most_islands) = (0u64, 0u64);
+    for w in 0..120 {
+        let a = islands.step_window().unwrap();
+        let b = global.step_window().unwrap();
+        let what = format!("window {w}");
+        assert_eq!(islands.world.x, global.world.x, "{what}: positions");
+        assert_eq!(islands.world.v, global.world.v, "{what}: velocities");
+        assert_eq!(islands.world.layers, global.world.layers, "{what}: layers");
+        let counts = |s: &WindowStats| (s.layer_events, s.layer_evaluations, s.layer_kicks);
+        assert_eq!(counts(&a), counts(&b), "{what}: counts");
+        evaluations += a.layer_evaluations;
+        most_islands = most_islands.max(a.islands);
+    }
+    println!("{evaluations} evaluations, up to {most_islands} islands");
+    assert!(most_islands >= 2, "the sheets must make two islands");
+}
+
 // ------------------------------------------------- 5. penalty kick = -h dV/dx
 
 #[test]

@@ -30,7 +30,7 @@ use super::far::{Checked, FarSet};
 use super::island::{Island, Pass, SegmentOutput, Shared};
 use super::{BINS_PER_RANK, BINS_PER_THREAD};
 use crate::clock::Tick;
-use crate::dormancy::{breaks_cap, SharedCaps, BREAKPOINTS_PER_WAKE};
+use crate::dormancy::{changes_cap, SharedCaps, BREAKPOINTS_PER_WAKE};
 use crate::executor::Executor;
 use crate::trace;
 use crate::world::World;
@@ -258,13 +258,17 @@ impl Units {
 
     /// Which live units the segment ending at `e` visits: a unit with a stencil
     /// awake or due to wake in it, or — after an internal tick — one of
-    /// whose vertices broke its speed cap or reached its breakpoints'
-    /// limit, or any when a kinematic vertex broke its shared cap. The
-    /// others would find nothing to do: observing their vertices' new
-    /// velocities would wake nothing (only lower caps, which no
-    /// certificate needs), and every batch would read no stencil. They are
-    /// skipped, the internal tick's breakpoint counted for their next
-    /// visit.
+    /// whose vertices' new speed would change its speed cap (break it, or
+    /// fall below half of it: `dormancy::changes_cap`) or that reached its
+    /// breakpoints' limit, or any when a kinematic vertex broke its shared
+    /// cap. The others would find nothing to do: observing their vertices'
+    /// new velocities would change no cap and wake nothing, and every batch
+    /// would read no stencil. They are skipped, the internal tick's
+    /// breakpoint counted for their next visit: every cap, so every later
+    /// certificate and count, is what visiting them would leave (a skip
+    /// that let a cap stay above a speed that would have lowered it could
+    /// give later certificates other lengths, so other evaluation counts
+    /// than the global schedule's).
     fn units_to_visit<E: Executor>(
         &mut self,
         exec: &E,
@@ -283,8 +287,8 @@ impl Units {
                 let limit = self.most_breakpoints[u] + self.skipped[u] + 1 >= BREAKPOINTS_PER_WAKE;
                 visit[u] |= self.live[u] && (all || limit);
             }
-            // The units of the vertices whose new speed breaks their cap,
-            // found on the executor (reads only).
+            // The units of the vertices whose new speed would change their
+            // cap, found on the executor (reads only).
             let (of_vertex, caps, seen) = (&self.unit_of_vertex, &self.caps, &visit);
             let n = of_vertex.len();
             let broke = exec.map(n.div_ceil(CAP_CHECK_RUN), &|r| {
@@ -293,7 +297,7 @@ impl Units {
                     let u = of_vertex[i];
                     if u != NONE && !seen[u as usize] && units.last() != Some(&u) {
                         let cap = f64::from_bits(caps[i].load(Ordering::Relaxed));
-                        if breaks_cap(w.v[i], cap) {
+                        if changes_cap(w.v[i], cap) {
                             units.push(u);
                         }
                     }
