@@ -13,7 +13,7 @@
 //! A far stencil's certificate is the dormancy's (`island.rs`, `sleep`):
 //! exact at a segment start, it holds until a tick while its vertices move
 //! no faster than their speed caps ([`FarSet`]'s, raised to
-//! [`HEADROOM`] × a speed that breaks them) with fewer than
+//! [`HEADROOM`] × a speed that breaks them) with at most
 //! [`BREAKPOINTS_PER_WAKE`] breakpoints since it was made. Per segment
 //! `[s, e]` (the penalty ticks between two internal ticks and the island
 //! batch at the internal tick `e`):

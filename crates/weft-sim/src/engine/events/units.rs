@@ -440,6 +440,7 @@ impl Units {
             // (built awake: visited)
             self.quiet[slot as usize] = None;
             self.skipped[slot as usize] = 0;
+            self.most_breakpoints[slot as usize] = 0;
             built.push(Mutex::new(Some((vertices, members))));
             changed.push(slot);
         }
