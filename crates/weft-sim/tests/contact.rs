@@ -2072,13 +2072,14 @@ fn a_kinematic_obstacle_that_speeds_up_wakes_the_stencils_asleep_against_it() {
 /// the plate asleep in flight, its island skipped at most internal ticks
 /// while gravity slows it and speeds it up again); beside it a sheet carried
 /// by a rising plate stays in contact, so the one island of the global
-/// schedule is visited, and every vertex observed, at every internal tick.
+/// schedule is visited, and every vertex observed, at nearly every internal
+/// tick.
 /// Every island alone ends each window in the global schedule's positions,
 /// velocities and layers with its counts of layer events, exact evaluations
 /// and kicks: a skipped island must leave every speed cap as a visit would
 /// (`dormancy::changes_cap`), or its later certificates get other lengths.
 #[test]
-fn a_skipped_island_keeps_the_speed_caps_a_visit_would_leave() {
+fn an_island_skipped_in_flight_keeps_the_bits_and_counts_of_the_global_schedule() {
     let plate = |x: f64| grid(DVec3::X * x, DVec3::X, DVec3::Y, [0.06, 0.06], [6, 6]);
     let sheet = |x: f64, z: f64| {
         grid(
