@@ -495,6 +495,13 @@ impl Trajectories {
             .collect()
     }
 
+    /// Whether the staged columns are full: the next internal tick's
+    /// [`Trajectories::runs`] would store them first (an early
+    /// [`Trajectories::flush`] gives the same polylines).
+    pub fn staged_full(&self) -> bool {
+        self.staged.times.len() == STAGED_TICKS
+    }
+
     /// Stores every staged breakpoint, in runs of vertices (cut at
     /// `bounds`) on `exec`.
     pub fn flush<E: crate::executor::Executor>(&mut self, exec: &E, bounds: &[usize]) {

@@ -806,7 +806,11 @@ impl<E: Executor> Engine<E> {
         counts: &mut PassCounts,
     ) -> (Vec<SegmentOutput>, SegmentTotals, Vec<Option<usize>>) {
         let Engine {
-            world, exec, ws, ..
+            world,
+            exec,
+            ws,
+            traj,
+            ..
         } = self;
         let world = &*world;
         let pass = Pass {
@@ -836,6 +840,15 @@ impl<E: Executor> Engine<E> {
                 outputs = units.segment(exec, &pass, (s, e), true);
             },
             &mut || {
+                // Full staged columns, which the tick would store first
+                // (a loop bound by memory latency, vertex by vertex), are
+                // stored here: the islands neither read nor write the
+                // trajectories while they run, and the polylines are the
+                // same whenever the staged ticks are stored.
+                if traj.staged_full() {
+                    let _span = trace::span("staged store");
+                    traj.flush(exec, vertex_runs);
+                }
                 let clock = Instant::now();
                 calm_forces(exec, world, calm, (vertex_runs, bounds), (xt, out), e);
                 let runs = (&calm.calm_fold_in_run[..], &vertex_runs[..]);
