@@ -53,6 +53,14 @@ impl Lattice {
         t as f64 * self.quantum
     }
 
+    /// The position at tick `t` of a vertex at `x` at tick `tau` with
+    /// velocity `v`: the engine's drift `x + v (t - tau) q`, written once,
+    /// so every place that drifts a vertex gets the same bits.
+    #[inline]
+    pub fn drift(&self, x: glam::DVec3, v: glam::DVec3, tau: Tick, t: Tick) -> glam::DVec3 {
+        x + v * ((t - tau) as f64 * self.quantum)
+    }
+
     /// The last tick at or before `seconds`, rounded down to a whole window.
     pub fn window_end_at_or_before(&self, seconds: f64) -> Tick {
         let w = self.window();

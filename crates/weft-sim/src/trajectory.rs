@@ -393,7 +393,7 @@ impl Trajectories {
     pub fn runs(&mut self, bounds: &[usize], t: Option<Tick>) -> Vec<TrajectoryRun<'_>> {
         self.make_staged_columns();
         let flush = match t {
-            Some(_) => self.staged.times.len() == STAGED_TICKS,
+            Some(_) => self.staged_full(),
             None => !self.staged.times.is_empty(),
         };
         self.runs_with(bounds, t, flush)

@@ -402,7 +402,7 @@ impl<E: Executor> Engine<E> {
     /// Position of vertex `i` at tick `t` (drift without writing).
     #[inline]
     fn pos_at(world: &World, i: usize, t: Tick) -> DVec3 {
-        world.x[i] + world.v[i] * ((t - world.tau[i]) as f64 * world.lattice.quantum)
+        world.lattice.drift(world.x[i], world.v[i], world.tau[i], t)
     }
 
     /// Runs one window to commit (with as many rollbacks as it needs).

@@ -58,6 +58,7 @@ use weft_core::{StencilKey, StencilKind};
 use weft_geom::distance::{separation_lower_bound, stencil_closest, Direction};
 
 use super::island::{sleep, SegmentOutput};
+use super::CAP_CHECK_RUN;
 use crate::clock::Tick;
 use crate::dormancy::{breaks_cap, BREAKPOINTS_PER_WAKE, HEADROOM};
 use crate::executor::Executor;
@@ -73,9 +74,6 @@ const RENEW_AFTER_BREAKPOINTS: u32 = BREAKPOINTS_PER_WAKE / 2;
 /// Far stencils per task when they are certified again (a segment renews
 /// a few hundred: small tasks keep many threads busy).
 const RENEW_RUN: usize = 32;
-
-/// Far vertices per task of the speed-cap check after an internal tick.
-const CAP_CHECK_RUN: usize = 1024;
 
 /// The far stencils of a pass, their certificates and their vertices'
 /// speed caps.
@@ -221,7 +219,7 @@ pub(super) fn may_be_far(w: &World, key: &StencilKey) -> bool {
 #[inline]
 fn pos_at(w: &World, i: u32, t: Tick) -> DVec3 {
     let i = i as usize;
-    w.x[i] + w.v[i] * ((t - w.tau[i]) as f64 * w.lattice.quantum)
+    w.lattice.drift(w.x[i], w.v[i], w.tau[i], t)
 }
 
 /// The tick up to which (exclusive) a stencil of vertices `v` is certified
@@ -249,6 +247,30 @@ fn certify(
         t,
     );
     ((room > 0.0 && awake_at > t).then_some(awake_at), c.d)
+}
+
+/// [`certify`] at `t`, under the caps `cap`, of the `n` stencils `key`
+/// gives (`None`: not one to certify), on the executor in runs of
+/// [`RENEW_RUN`]; in order.
+fn certify_in_runs<E: Executor>(
+    exec: &E,
+    w: &World,
+    n: usize,
+    key: &(dyn Fn(usize) -> Option<StencilKey> + Sync),
+    cap: &[f64],
+    t: Tick,
+) -> Vec<Option<(Option<Tick>, f64)>> {
+    let runs = exec.map(n.div_ceil(RENEW_RUN), &|r| {
+        (r * RENEW_RUN..((r + 1) * RENEW_RUN).min(n))
+            .map(|k| {
+                key(k).map(|key| {
+                    let caps = key.v.map(|i| cap[i as usize]);
+                    certify(w, key.kind, &key.v, &caps, t)
+                })
+            })
+            .collect::<Vec<_>>()
+    });
+    runs.into_iter().flatten().collect()
 }
 
 /// The speed cap a velocity sets: [`HEADROOM`] × its speed.
@@ -293,19 +315,11 @@ impl FarSet {
         };
         let mut is_far = vec![false; candidates.len()];
         // The certificates, on the executor in runs, then taken in order.
-        let cap = &set.cap;
-        let certified = exec.map(candidates.len().div_ceil(RENEW_RUN), &|r| {
-            let run = &candidates[r * RENEW_RUN..((r + 1) * RENEW_RUN).min(candidates.len())];
-            (run.iter())
-                .map(|(key, _, pack)| {
-                    mine(*pack).then(|| {
-                        let caps = key.v.map(|i| cap[i as usize]);
-                        certify(w, key.kind, &key.v, &caps, t0)
-                    })
-                })
-                .collect::<Vec<_>>()
-        });
-        let certified = certified.into_iter().flatten();
+        let mine_key = |c: usize| {
+            let (key, _, pack) = candidates[c];
+            mine(pack).then_some(key)
+        };
+        let certified = certify_in_runs(exec, w, candidates.len(), &mine_key, &set.cap, t0);
         for (c, ((key, depth, pack), certificate)) in candidates.iter().zip(certified).enumerate() {
             let Some((until, d)) = certificate else {
                 continue;
@@ -460,19 +474,13 @@ impl FarSet {
         renew.dedup();
         renew.retain(|&f| !self.promoted[f as usize]);
         // The certificates, on the executor in runs, then applied in order.
-        let this = &*self;
-        let certified = exec.map(renew.len().div_ceil(RENEW_RUN), &|r| {
-            let run = &renew[r * RENEW_RUN..((r + 1) * RENEW_RUN).min(renew.len())];
-            (run.iter())
-                .map(|&f| {
-                    let key = this.key[f as usize];
-                    let caps = key.v.map(|i| this.cap[i as usize]);
-                    certify(w, key.kind, &key.v, &caps, s)
-                })
-                .collect::<Vec<_>>()
-        });
+        let key = |k: usize| Some(self.key[renew[k] as usize]);
+        let certified = certify_in_runs(exec, w, renew.len(), &key, &self.cap, s);
+        let certified = certified
+            .into_iter()
+            .map(|c| c.expect("each one certified"));
         let mut promote = Vec::new();
-        for (&f, (until, d)) in renew.iter().zip(certified.into_iter().flatten()) {
+        for (&f, (until, d)) in renew.iter().zip(certified) {
             let fu = f as usize;
             checked.saw(d);
             match until.filter(|&u| u > e) {

@@ -523,7 +523,6 @@ impl Island {
     /// world) at tick `t`, by the engine's drift `x + (t - tau) q v`.
     #[inline]
     fn position(&self, w: &World, local: u32, i: u32, t: Tick) -> DVec3 {
-        let q = w.lattice.quantum;
         let (x, v, tau) = if local != NONE && self.moved[local as usize] {
             let j = local as usize;
             (self.x[j], self.v[j], self.tau[j])
@@ -531,7 +530,7 @@ impl Island {
             let i = i as usize;
             (w.x[i], w.v[i], w.tau[i])
         };
-        x + v * ((t - tau) as f64 * q)
+        w.lattice.drift(x, v, tau, t)
     }
 
     /// Velocity of a stencil vertex (the island's, or a kinematic one's).

@@ -60,6 +60,10 @@ pub(super) const PACK_STENCILS: usize = 64;
 /// Vertices per task of the per-vertex stages of an internal tick.
 const VERTEX_RUN: usize = 512;
 
+/// Vertices per task of the speed-cap checks after an internal tick (the
+/// units' and the far stencils'): a read and a compare each.
+const CAP_CHECK_RUN: usize = 1024;
+
 /// Counters of one pass over a window.
 #[derive(Debug, Default)]
 pub(super) struct PassCounts {
@@ -442,7 +446,7 @@ impl<E: Executor> Engine<E> {
         use crate::executor::split_chunks;
         let w = &mut self.world;
         let bounds = &self.ws.vertex_runs;
-        let quantum = w.lattice.quantum;
+        let lattice = w.lattice;
         struct Run<'a> {
             x: &'a mut [DVec3],
             v: &'a [DVec3],
@@ -470,8 +474,7 @@ impl<E: Executor> Engine<E> {
             // (the staged ticks stored first, as `Trajectories::flush`)
             r.traj.prepare();
             for j in 0..r.x.len() {
-                // (`Engine::pos_at`)
-                let p = r.x[j] + r.v[j] * ((end - r.tau[j]) as f64 * quantum);
+                let p = lattice.drift(r.x[j], r.v[j], r.tau[j], end);
                 r.x[j] = p;
                 r.tau[j] = end;
                 r.added += usize::from(r.traj.record(j, end, p));

@@ -28,7 +28,7 @@ use weft_core::{StencilKey, NONE};
 
 use super::far::{Checked, FarSet};
 use super::island::{Island, Pass, SegmentOutput, Shared};
-use super::{BINS_PER_RANK, BINS_PER_THREAD};
+use super::{BINS_PER_RANK, BINS_PER_THREAD, CAP_CHECK_RUN};
 use crate::clock::Tick;
 use crate::dormancy::{changes_cap, SharedCaps, BREAKPOINTS_PER_WAKE};
 use crate::executor::Executor;
@@ -461,9 +461,6 @@ impl Units {
         (changed, emptied)
     }
 }
-
-/// Vertices per task of the speed-cap check after an internal tick.
-const CAP_CHECK_RUN: usize = 1024;
 
 /// The cost of a unit whose last segment was idle.
 const IDLE_SECONDS: f64 = 1e-7;
