@@ -6,13 +6,15 @@
 //! idle worker, and a caller waiting for a stolen piece, sleep after a few
 //! microseconds, and waking a thread took about 100 µs on the development
 //! machine. So each loop is run by a *team* (`Threads::team`: the
-//! caller and one helper job per other worker take indices from one
-//! counter; the caller spins at the end, running whatever the pool has),
+//! caller and one helper job per other worker take indices, the caller
+//! from the front and the helpers from the back, so a thread keeps much
+//! the same runs of vertices from loop to loop; the caller spins at the
+//! end, running whatever the pool has),
 //! and between loops the other workers are *kept awake*
 //! (`Threads::keep_awake`). Which thread runs a task never changes its
 //! result, so none of this changes a bit.
 
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -68,6 +70,35 @@ impl Backoff {
         match rayon::yield_now() {
             Some(rayon::Yield::Executed) => self.busy(),
             _ => self.idle(),
+        }
+    }
+}
+
+/// Takes the next index of `lo..hi` (packed as `hi << 32 | lo`) from the
+/// front or the back; `None` when none is left.
+///
+/// A team's caller takes from the front and its helpers from the back, so
+/// in the loops of an internal tick over the same runs of vertices each
+/// thread mostly gets the runs it had in the loop before, whose data its
+/// cache still holds. With one shared counter the runs changed threads
+/// from loop to loop: measured on the development machine (2 threads,
+/// twister from its checkpoints, interleaved rounds), the window took 4 %
+/// longer at 10k and 4–8 % longer at 50k.
+fn claim(ends: &AtomicU64, front: bool) -> Option<usize> {
+    let mut cur = ends.load(Ordering::Relaxed);
+    loop {
+        let (lo, hi) = (cur & 0xffff_ffff, cur >> 32);
+        if lo >= hi {
+            return None;
+        }
+        let (next, i) = if front {
+            (cur + 1, lo)
+        } else {
+            (cur - (1 << 32), hi - 1)
+        };
+        match ends.compare_exchange_weak(cur, next, Ordering::Relaxed, Ordering::Relaxed) {
+            Ok(_) => return Some(i as usize),
+            Err(now) => cur = now,
         }
     }
 }
@@ -203,8 +234,9 @@ impl Threads {
     }
 
     /// Runs `task(i)` for every `i` in `0..n` once, on the pool: the
-    /// calling thread and one helper job per other worker take indices in
-    /// order from one counter; the caller, its own share done, waits for
+    /// calling thread takes indices from the front and one helper job per
+    /// other worker from the back ([`claim`]); the caller, its share done,
+    /// waits for
     /// the indices taken elsewhere by running whatever work the pool has
     /// (a nested loop's pieces among it) and spinning ([`Backoff`]),
     /// instead of sleeping in rayon's wait. A panic in a task ends the
@@ -212,34 +244,35 @@ impl Threads {
     fn team(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
         use std::sync::atomic::AtomicBool;
         self.keep_awake();
-        let next = AtomicUsize::new(0);
+        // The indices not yet taken, `lo..hi` packed in one word: the
+        // caller takes from the front, the helpers from the back.
+        let hi = u32::try_from(n).expect("fewer than 2^32 tasks in a loop");
+        let ends = AtomicU64::new(u64::from(hi) << 32);
         let done = AtomicUsize::new(0);
         let panicked = AtomicBool::new(false);
-        let work = || {
-            as_task(|| loop {
-                let i = next.fetch_add(1, Ordering::Relaxed);
-                if i >= n {
-                    break;
-                }
-                struct Watch<'a>(&'a AtomicBool);
-                impl Drop for Watch<'_> {
-                    fn drop(&mut self) {
-                        if std::thread::panicking() {
-                            self.0.store(true, Ordering::Release);
+        let work = |front: bool| {
+            as_task(|| {
+                while let Some(i) = claim(&ends, front) {
+                    struct Watch<'a>(&'a AtomicBool);
+                    impl Drop for Watch<'_> {
+                        fn drop(&mut self) {
+                            if std::thread::panicking() {
+                                self.0.store(true, Ordering::Release);
+                            }
                         }
                     }
+                    let _watch = Watch(&panicked);
+                    task(i);
+                    done.fetch_add(1, Ordering::Release);
                 }
-                let _watch = Watch(&panicked);
-                task(i);
-                done.fetch_add(1, Ordering::Release);
             })
         };
         self.pool.install(|| {
             rayon::scope(|s| {
                 for _ in 1..self.threads().min(n) {
-                    s.spawn(|_| work());
+                    s.spawn(|_| work(false));
                 }
-                work();
+                work(true);
                 let mut wait = Backoff::new();
                 while done.load(Ordering::Acquire) < n && !panicked.load(Ordering::Acquire) {
                     wait.look();
@@ -329,6 +362,31 @@ impl Executor for Threads {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn claims_from_both_ends_hand_out_every_index_once() {
+        let ends = AtomicU64::new(5 << 32);
+        let order: Vec<_> = [true, false, false, true, true, false]
+            .into_iter()
+            .map(|front| claim(&ends, front))
+            .collect();
+        assert_eq!(order, [Some(0), Some(4), Some(3), Some(1), Some(2), None]);
+        // Taken at once by two threads at each end: each index once.
+        let n = 100_000u32;
+        let ends = AtomicU64::new(u64::from(n) << 32);
+        let mut all: Vec<usize> = std::thread::scope(|s| {
+            let takers: Vec<_> = [true, true, false, false]
+                .into_iter()
+                .map(|front| {
+                    let ends = &ends;
+                    s.spawn(move || std::iter::from_fn(|| claim(ends, front)).collect::<Vec<_>>())
+                })
+                .collect();
+            takers.into_iter().flat_map(|t| t.join().unwrap()).collect()
+        });
+        all.sort_unstable();
+        assert!(all.iter().copied().eq(0..n as usize));
+    }
 
     #[test]
     fn chunks_are_disjoint_and_complete_and_maps_ordered() {
