@@ -1,7 +1,8 @@
 //! The internal forces evaluated in two parts — the elements a mask keeps,
 //! then the others — give every output slot the bits of one evaluation of
 //! all elements: what lets an internal tick compute the elements no contact
-//! island touches while the islands run (`weft-sim`'s `engine/events`).
+//! island touches while the islands run (`weft-sim`'s `engine/events`). So
+//! do both evaluated in pieces of elements rather than whole partitions.
 
 use std::path::Path;
 
@@ -36,6 +37,10 @@ fn split_matches_whole<E: Executor>(exec: &E, w: &World, rng: &mut Rng) {
     w.internal.evaluate(exec, &bounds, &x, &v, &mut whole, None);
     assert!(whole.iter().all(|g| g.is_finite()));
     assert!(whole.iter().filter(|g| **g != DVec3::ZERO).count() > whole.len() / 2);
+    // In pieces of elements (one memory's evaluations), every slot written.
+    let mut pieces = vec![DVec3::NAN; whole.len()];
+    (w.internal).evaluate_in_pieces(exec, (&x, &v), &mut pieces, None);
+    assert_eq!(bits(&pieces), bits(&whole));
     // Masks by vertex as the islands make them: a random share of the
     // vertices (none, some, all) lies in an island.
     for share in [0.0, 0.05, 0.3, 0.7, 1.0] {
@@ -66,6 +71,13 @@ fn split_matches_whole<E: Executor>(exec: &E, w: &World, rng: &mut Rng) {
         let kept_slots: usize = (mask.stretch.iter().filter(|&&b| b).count() * 3)
             + mask.hinges.iter().filter(|&&b| b).count() * 4;
         assert_eq!(written, kept_slots, "share {share}");
+        // The same halves in pieces.
+        let mut in_pieces = vec![DVec3::NAN; whole.len()];
+        (w.internal).evaluate_in_pieces(exec, (&x, &v), &mut in_pieces, Some((&mask, true)));
+        let written = in_pieces.iter().filter(|g| !g.is_nan()).count();
+        assert_eq!(written, kept_slots, "share {share}, in pieces");
+        (w.internal).evaluate_in_pieces(exec, (&x, &v), &mut in_pieces, Some((&mask, false)));
+        assert_eq!(bits(&in_pieces), bits(&whole), "share {share}, in pieces");
     }
 }
 

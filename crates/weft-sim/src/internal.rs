@@ -1,5 +1,6 @@
 //! Internal forces: stretch, bend and damping stencils split into partitions,
-//! evaluated per partition and summed per vertex by an ordered fold.
+//! evaluated per partition (on one memory in pieces of a partition's
+//! elements) and summed per vertex by an ordered fold.
 //!
 //! Storage is partition-major (each partition's elements, and their output
 //! slots, are contiguous) while the per-vertex fold visits contributions in
@@ -23,14 +24,28 @@ pub struct Partition {
     pub slots: Range<usize>,
 }
 
+/// At most this many elements per piece ([`InternalForces::evaluate_in_pieces`]).
+const ELEMENTS_PER_PIECE: usize = 256;
+
+/// A run of one partition's elements, in storage order (its stretch
+/// elements, then its hinges), and so of its output slots.
+#[derive(Clone, Debug, PartialEq)]
+struct Piece {
+    stretch: Range<usize>,
+    hinges: Range<usize>,
+}
+
 /// A subset of the internal elements: per stretch element and per hinge
-/// (by storage index) whether it is in, and per partition how many of its
-/// elements are.
+/// (by storage index) whether it is in, and per partition (and piece) how
+/// many of its elements are.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ElementMask {
     pub stretch: Vec<bool>,
     pub hinges: Vec<bool>,
     pub in_partition: Vec<usize>,
+    /// Per piece ([`InternalForces::evaluate_in_pieces`]) how many of its
+    /// elements are in.
+    in_piece: Vec<usize>,
 }
 
 /// All internal stencils of the world.
@@ -42,6 +57,12 @@ pub struct InternalForces {
     pub hinge_material: Vec<u16>,
     pub materials: Vec<Material>,
     pub partitions: Vec<Partition>,
+    /// The partitions cut into pieces of at most [`ELEMENTS_PER_PIECE`]
+    /// elements, with their slot bounds: on one memory the tasks of an
+    /// evaluation (a few partitions can hold most of a masked evaluation's
+    /// elements, and one partition per task left a thread idle at its end).
+    pieces: Vec<Piece>,
+    piece_bounds: Vec<usize>,
     /// Storage index of each stretch element and hinge in global key order
     /// (storage is partition-major): every sum over elements runs in this
     /// order, so its bits do not depend on the partitioning.
@@ -181,6 +202,7 @@ impl InternalForces {
         let damped = materials_list
             .iter()
             .any(|m| m.stretch_damping > 0.0 || m.bend_damping > 0.0);
+        let (pieces, piece_bounds) = cut_into_pieces(&parts);
         Ok(Self {
             stretch,
             stretch_material,
@@ -188,6 +210,8 @@ impl InternalForces {
             hinge_material,
             materials: materials_list.to_vec(),
             partitions: parts,
+            pieces,
+            piece_bounds,
             stretch_by_key: by_key(&stretch_keys),
             hinge_by_key: by_key(&hinge_keys),
             incidence_offsets,
@@ -274,6 +298,36 @@ impl InternalForces {
         });
     }
 
+    /// On one memory: every element's internal force (`mask` `None`), or
+    /// those whose entry in `mask` is `want`, into `out` (all the slots;
+    /// the others' left as they are), in pieces of at most
+    /// [`ELEMENTS_PER_PIECE`] elements on the executor. Each element writes
+    /// its own slots, so the bits do not depend on the cut.
+    pub fn evaluate_in_pieces<E: Executor>(
+        &self,
+        exec: &E,
+        (x, v): (&[DVec3], &[DVec3]),
+        out: &mut [DVec3],
+        mask: Option<(&ElementMask, bool)>,
+    ) {
+        exec.for_each_chunk(out, &self.piece_bounds, &|k, chunk: &mut [DVec3]| {
+            let piece = &self.pieces[k];
+            if let Some((m, want)) = mask {
+                let all = piece.stretch.len() + piece.hinges.len();
+                let wanted = match want {
+                    true => m.in_piece[k],
+                    false => all - m.in_piece[k],
+                };
+                if wanted == 0 {
+                    return;
+                }
+                let mask = (wanted < all).then_some((m, want));
+                return self.evaluate_range(piece, x, v, chunk, mask);
+            }
+            self.evaluate_range(piece, x, v, chunk, None);
+        });
+    }
+
     /// The elements (by storage index) all of whose vertices `pick` keeps.
     pub fn mask_where(&self, pick: impl Fn(u32) -> bool) -> ElementMask {
         let stretch: Vec<bool> = (self.stretch.iter())
@@ -288,10 +342,17 @@ impl InternalForces {
                 s + hinges[p.hinges.clone()].iter().filter(|&&b| b).count()
             })
             .collect();
+        let in_piece = (self.pieces.iter())
+            .map(|p| {
+                let s = stretch[p.stretch.clone()].iter().filter(|&&b| b).count();
+                s + hinges[p.hinges.clone()].iter().filter(|&&b| b).count()
+            })
+            .collect();
         ElementMask {
             stretch,
             hinges,
             in_partition,
+            in_piece,
         }
     }
 
@@ -325,8 +386,25 @@ impl InternalForces {
         mask: Option<(&ElementMask, bool)>,
     ) {
         let part = &self.partitions[p];
+        let piece = Piece {
+            stretch: part.stretch.clone(),
+            hinges: part.hinges.clone(),
+        };
+        self.evaluate_range(&piece, x, v, chunk, mask);
+    }
+
+    /// Evaluates the elements of `piece` (all, or those whose entry in
+    /// `mask` is `want`) into `chunk`, their output slots.
+    fn evaluate_range(
+        &self,
+        piece: &Piece,
+        x: &[DVec3],
+        v: &[DVec3],
+        chunk: &mut [DVec3],
+        mask: Option<(&ElementMask, bool)>,
+    ) {
         let mut k = 0;
-        for s in part.stretch.clone() {
+        for s in piece.stretch.clone() {
             if mask.is_some_and(|(m, want)| m.stretch[s] != want) {
                 k += 3;
                 continue;
@@ -345,7 +423,7 @@ impl InternalForces {
             chunk[k..k + 3].copy_from_slice(&g);
             k += 3;
         }
-        for h in part.hinges.clone() {
+        for h in piece.hinges.clone() {
             if mask.is_some_and(|(m, want)| m.hinges[h] != want) {
                 k += 4;
                 continue;
@@ -515,4 +593,30 @@ impl KeyOrdered {
             materials: &self.materials,
         }
     }
+}
+
+/// The partitions' elements cut into pieces of at most
+/// [`ELEMENTS_PER_PIECE`] (each partition into about equal pieces, in
+/// storage order), with the pieces' slot bounds (3 slots per stretch
+/// element, 4 per hinge, as the partitions').
+fn cut_into_pieces(parts: &[Partition]) -> (Vec<Piece>, Vec<usize>) {
+    let mut pieces = Vec::new();
+    let mut bounds = vec![0];
+    for part in parts {
+        let (ns, nh) = (part.stretch.len(), part.hinges.len());
+        let n = ns + nh;
+        let count = n.div_ceil(ELEMENTS_PER_PIECE).max(1);
+        let mut slot = part.slots.start;
+        for c in 0..count {
+            // Elements [a, b) of the partition's storage order.
+            let (a, b) = (c * n / count, (c + 1) * n / count);
+            let stretch = (part.stretch.start + a.min(ns))..(part.stretch.start + b.min(ns));
+            let hinges = (part.hinges.start + a.max(ns) - ns)..(part.hinges.start + b.max(ns) - ns);
+            slot += 3 * stretch.len() + 4 * hinges.len();
+            bounds.push(slot);
+            pieces.push(Piece { stretch, hinges });
+        }
+        debug_assert_eq!(slot, part.slots.end);
+    }
+    (pieces, bounds)
 }

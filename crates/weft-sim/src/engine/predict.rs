@@ -354,7 +354,7 @@ impl<E: Executor> Engine<E> {
         let forces = trace::span("predict forces");
         let (bounds, out) = self.ws.internal_scratch();
         match &self.share {
-            None => w.internal.evaluate(exec, bounds, &w.x, &w.v, out, None),
+            None => (w.internal).evaluate_in_pieces(exec, (&w.x, &w.v), out, None),
             Some(share) => {
                 let boundary = Some(&share.boundary_partition[..]);
                 w.internal.evaluate(exec, bounds, &w.x, &w.v, out, boundary);

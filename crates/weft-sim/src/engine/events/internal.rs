@@ -79,7 +79,11 @@ impl<E: Executor> Engine<E> {
             }
         };
         match share {
-            None => rest(&mut ws.out, None),
+            // On one memory in pieces of elements (`evaluate_in_pieces`).
+            None => {
+                let mask = calm.map(|calm| (&calm.elements, false));
+                (w.internal).evaluate_in_pieces(exec, (xt, &w.v), &mut ws.out, mask);
+            }
             Some(share) => {
                 // Of each kind of partition, those whose calm elements are
                 // done get the rest, the others all their elements.

@@ -214,14 +214,14 @@ fn calm_forces<E: Executor>(
     exec: &E,
     world: &World,
     calm: &Calm,
-    (vertex_runs, bounds): (&[usize], &[usize]),
+    vertex_runs: &[usize],
     (xt, out): (&mut [DVec3], &mut [DVec3]),
     e: Tick,
 ) {
     let _span = trace::span("calm forces");
     calm_positions(exec, world, calm, vertex_runs, xt, e);
-    let mask = (&calm.elements, true);
-    (world.internal).evaluate_masked(exec, bounds, xt, &world.v, out, mask, None);
+    let mask = Some((&calm.elements, true));
+    (world.internal).evaluate_in_pieces(exec, (xt, &world.v), out, mask);
 }
 
 /// The offsets in each run of [`VERTEX_RUN`] vertices (cut at `runs`) of
@@ -829,7 +829,6 @@ impl<E: Executor> Engine<E> {
             out,
             acc,
             v_new,
-            bounds,
             vertex_runs,
             calm,
             ..
@@ -853,7 +852,7 @@ impl<E: Executor> Engine<E> {
                     traj.flush(exec, vertex_runs);
                 }
                 let clock = Instant::now();
-                calm_forces(exec, world, calm, (vertex_runs, bounds), (xt, out), e);
+                calm_forces(exec, world, calm, vertex_runs, (xt, out), e);
                 let runs = (&calm.calm_fold_in_run[..], &vertex_runs[..]);
                 let slots = (&out[..], &xt[..]);
                 bad = internal::fold_listed(
