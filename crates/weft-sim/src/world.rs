@@ -5,6 +5,7 @@
 //! [`World::x`] is its **input id**, the id every key and every output uses.
 
 use std::ops::Range;
+use std::sync::Arc;
 
 use glam::DVec3;
 use weft_core::{StencilKey, StencilKind, Topology, TriMesh};
@@ -94,8 +95,11 @@ pub struct World {
     /// Inverse masses; 0 for kinematic vertices.
     pub inv_mass: Vec<f64>,
     pub triangles: Vec<[u32; 3]>,
-    pub topology: Topology,
-    pub internal: InternalForces,
+    /// The mesh's adjacency and the internal elements never change after
+    /// the build: shared by a world's clones (a bench's runs, simulated
+    /// ranks), not copied.
+    pub topology: Arc<Topology>,
+    pub internal: Arc<InternalForces>,
     pub gravity: DVec3,
     pub scripts: Vec<Script>,
     /// `script_of[i]` = (script, index in script) for kinematic vertex i.
@@ -523,8 +527,8 @@ impl World {
             mass,
             inv_mass,
             triangles: all.triangles,
-            topology,
-            internal,
+            topology: Arc::new(topology),
+            internal: Arc::new(internal),
             gravity: spec.gravity,
             scripts,
             script_of,
