@@ -25,7 +25,7 @@ pub struct Partition {
 }
 
 /// At most this many elements per piece ([`InternalForces::evaluate_in_pieces`]).
-const ELEMENTS_PER_PIECE: usize = 256;
+pub const ELEMENTS_PER_PIECE: usize = 256;
 
 /// A run of one partition's elements, in storage order (its stretch
 /// elements, then its hinges), and so of its output slots.
