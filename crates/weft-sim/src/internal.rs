@@ -283,10 +283,7 @@ impl InternalForces {
             }
             let part = &self.partitions[p];
             let all = part.stretch.len() + part.hinges.len();
-            let wanted = match want {
-                true => mask.in_partition[p],
-                false => all - mask.in_partition[p],
-            };
+            let wanted = wanted(all, mask.in_partition[p], want);
             if wanted == 0 {
                 return;
             }
@@ -314,10 +311,7 @@ impl InternalForces {
             let piece = &self.pieces[k];
             if let Some((m, want)) = mask {
                 let all = piece.stretch.len() + piece.hinges.len();
-                let wanted = match want {
-                    true => m.in_piece[k],
-                    false => all - m.in_piece[k],
-                };
+                let wanted = wanted(all, m.in_piece[k], want);
                 if wanted == 0 {
                     return;
                 }
@@ -592,6 +586,15 @@ impl KeyOrdered {
             hinge_material: &self.hinge_material,
             materials: &self.materials,
         }
+    }
+}
+
+/// Of `all` elements of which `kept` are in a mask: how many an evaluation
+/// of those whose entry is `want` runs.
+fn wanted(all: usize, kept: usize, want: bool) -> usize {
+    match want {
+        true => kept,
+        false => all - kept,
     }
 }
 
