@@ -106,6 +106,11 @@ pub struct BenchArgs {
     /// The projection's bandwidth per rank, GB/s.
     #[arg(long, value_name = "GB/S", default_value_t = 25.0)]
     pub bandwidth_gbs: f64,
+    /// How the projection's nonblocking collectives travel: `linear`, each
+    /// rank's part to every other rank (Open MPI 4.1's `coll/libnbc`, which
+    /// weft's MPI transport calls), or `tree`, recursive doubling.
+    #[arg(long, value_enum, default_value = "linear")]
+    pub collectives: project::Collectives,
 }
 
 /// The totals of one run of `--windows` windows.
@@ -589,6 +594,7 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
             latency: a.latency_us * 1e-6,
             overhead: a.overhead_us * 1e-6,
             seconds_per_byte: 1.0 / (a.bandwidth_gbs * 1e9),
+            collectives: a.collectives,
         };
         report.projection = Some(projection(&report, &all, &a.project, net)?);
     }
@@ -1384,10 +1390,14 @@ fn table(r: &BenchReport) -> String {
         let _ = writeln!(
             s,
             "\nprojection — a model, not a measurement (LogGP: L = {:.2} µs, o = {:.2} µs, \
-             {:.1} GB/s; bench/project.rs):",
+             {:.1} GB/s; {} collectives; bench/project.rs):",
             p.network.latency * 1e6,
             p.network.overhead * 1e6,
-            1e-9 / p.network.seconds_per_byte
+            1e-9 / p.network.seconds_per_byte,
+            match p.network.collectives {
+                project::Collectives::Linear => "linear",
+                project::Collectives::Tree => "tree",
+            }
         );
         for (ranks, replay, critical) in &p.replayed {
             let _ = writeln!(

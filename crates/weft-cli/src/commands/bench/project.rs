@@ -8,10 +8,12 @@
 //!
 //! * **Replay** ([`replay`]) of one measured run under a LogGP network: each
 //!   rank's clock advances by its measured work; an all-gather starts when
-//!   the last rank reaches it and takes `⌈log2 R⌉ (L + 2o) + G S (R-1)/R`
-//!   for `S` bytes in all; an all-to-all hands every rank every rank's head
-//!   of `h` bytes in `⌈log2 R⌉ (L + 2o) + G h (R-1)` and then its parts as
-//!   point-to-point messages; a point-to-point message leaves after the
+//!   the last rank reaches it and takes `L + 2 o + G S (R-1)/R` for
+//!   `S` bytes in all (each rank's part to each other rank, as Open MPI
+//!   4.1's nonblocking collectives do; with `--collectives tree`,
+//!   recursive doubling: `⌈log2 R⌉ (L + 2o) + G S (R-1)/R`); an all-to-all
+//!   hands every rank every rank's head of `h` bytes as an all-gather of
+//!   `h R` bytes and then its parts as point-to-point messages; a point-to-point message leaves after the
 //!   sender's overhead `o` and arrives `L + G b` later, and the receiver
 //!   pays `o` (no overlap of work and messages is credited). So the replay
 //!   keeps the measured load imbalance between every two collectives, which
@@ -41,12 +43,29 @@ use std::collections::{HashMap, VecDeque};
 use weft_par::ranks::SyncStep;
 
 /// A LogGP network: latency `L`, per-message CPU overhead `o`, and seconds
-/// per byte `G` (the inverse bandwidth), all in seconds.
+/// per byte `G` (the inverse bandwidth), all in seconds; and how the MPI
+/// library runs the nonblocking collectives.
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct Network {
     pub latency: f64,
     pub overhead: f64,
     pub seconds_per_byte: f64,
+    pub collectives: Collectives,
+}
+
+/// How a nonblocking all-gather (and an all-to-all's heads) travels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Collectives {
+    // (Plain comments: doc comments would turn `weft bench --help` into
+    // clap's long layout.)
+    // Every rank sends its part to every other rank, `R - 1` messages each
+    // way: Open MPI 4.1's `MPI_Iallgather` and `MPI_Ialltoall`
+    // (`coll/libnbc`), which weft's MPI transport calls.
+    Linear,
+    // Recursive doubling, `⌈log2 R⌉` rounds: what a library with tree or
+    // dissemination algorithms for them would take.
+    Tree,
 }
 
 impl Network {
@@ -56,21 +75,28 @@ impl Network {
         self.latency + 2.0 * self.overhead + self.seconds_per_byte * bytes
     }
 
-    /// An all-gather of `total` bytes over `ranks` ranks (recursive doubling:
-    /// `⌈log2 R⌉` rounds; each rank receives all but its own part).
+    /// An all-gather of `total` bytes over `ranks` ranks (each rank
+    /// receives all but its own part): recursive doubling, `⌈log2 R⌉`
+    /// rounds of `L + 2o`; or linear, the `R - 1` messages each way in
+    /// flight together, an overhead `o` for each and one latency.
     fn all_gather(&self, ranks: usize, total: f64) -> f64 {
         if ranks <= 1 {
             return 0.0;
         }
-        let rounds = (ranks as f64).log2().ceil();
-        rounds * (self.latency + 2.0 * self.overhead)
-            + self.seconds_per_byte * total * (ranks - 1) as f64 / ranks as f64
+        let others = (ranks - 1) as f64;
+        let messages = match self.collectives {
+            Collectives::Tree => {
+                (ranks as f64).log2().ceil() * (self.latency + 2.0 * self.overhead)
+            }
+            Collectives::Linear => self.latency + 2.0 * others * self.overhead,
+        };
+        messages + self.seconds_per_byte * total * others / ranks as f64
     }
 }
 
 impl Network {
     /// The dense step of an all-to-all: every rank's head of `head` bytes
-    /// to every rank (`⌈log2 R⌉` rounds, as an all-gather of them).
+    /// to every rank (as an all-gather of them).
     fn all_to_all_heads(&self, ranks: usize, head: f64) -> f64 {
         self.all_gather(ranks, head * ranks as f64)
     }
@@ -395,7 +421,30 @@ mod tests {
         latency: 1e-6,
         overhead: 0.5e-6,
         seconds_per_byte: 1e-9,
+        collectives: Collectives::Tree,
     };
+
+    #[test]
+    fn linear_collectives_pay_an_overhead_per_peer_and_tree_ones_a_round_per_doubling() {
+        let linear = Network {
+            collectives: Collectives::Linear,
+            ..NET
+        };
+        // Two ranks: one message each way either way.
+        assert_eq!(linear.all_gather(2, 1000.0), NET.all_gather(2, 1000.0));
+        // 384 ranks, 8 bytes a rank: 383 overheads each way and one
+        // latency, against 9 rounds.
+        let bytes = 1e-9 * 8.0 * 383.0;
+        let l = linear.all_gather(384, 8.0 * 384.0);
+        assert!(
+            (l - (1e-6 + 2.0 * 383.0 * 0.5e-6 + bytes)).abs() < 1e-15,
+            "{l}"
+        );
+        let t = NET.all_gather(384, 8.0 * 384.0);
+        assert!((t - (9.0 * 2e-6 + bytes)).abs() < 1e-15, "{t}");
+        assert!(l > 10.0 * t);
+        assert_eq!(linear.all_gather(1, 8.0), 0.0);
+    }
 
     #[test]
     fn a_collective_waits_for_the_slowest_rank() {
