@@ -12,7 +12,7 @@ use std::ops::Range;
 use glam::DVec3;
 use weft_core::{Topology, NONE};
 
-use crate::executor::Executor;
+use crate::executor::{split_chunks, Executor};
 use crate::materials::{ElasticModel, HingeElement, Material, MaterialError, StretchElement};
 
 /// One partition's share of the internal stencils.
@@ -63,6 +63,13 @@ pub struct InternalForces {
     /// elements, and one partition per task left a thread idle at its end).
     pieces: Vec<Piece>,
     piece_bounds: Vec<usize>,
+    /// The pieces by their lowest vertex id: the order their tasks are
+    /// handed out in. A team's threads take tasks from the two ends of a
+    /// loop (`weft-par`'s `Threads`), and the per-vertex loops after an
+    /// evaluation run over vertex ids: in this order a thread folds mostly
+    /// the slots it wrote, still in its cache (the partitions keep METIS's
+    /// numbering, which places them on ranks).
+    piece_order: Vec<u32>,
     /// Storage index of each stretch element and hinge in global key order
     /// (storage is partition-major): every sum over elements runs in this
     /// order, so its bits do not depend on the partitioning.
@@ -203,6 +210,18 @@ impl InternalForces {
             .iter()
             .any(|m| m.stretch_damping > 0.0 || m.bend_damping > 0.0);
         let (pieces, piece_bounds) = cut_into_pieces(&parts);
+        let first_vertex = |p: &Piece| -> u32 {
+            let stretch = stretch[p.stretch.clone()].iter().map(|e| &e.verts[..]);
+            let hinges = hinges[p.hinges.clone()].iter().map(|e| &e.verts[..]);
+            stretch
+                .chain(hinges)
+                .flatten()
+                .copied()
+                .min()
+                .unwrap_or(u32::MAX)
+        };
+        let mut piece_order: Vec<u32> = (0..pieces.len() as u32).collect();
+        piece_order.sort_by_key(|&k| (first_vertex(&pieces[k as usize]), k));
         Ok(Self {
             stretch,
             stretch_material,
@@ -212,6 +231,7 @@ impl InternalForces {
             partitions: parts,
             pieces,
             piece_bounds,
+            piece_order,
             stretch_by_key: by_key(&stretch_keys),
             hinge_by_key: by_key(&hinge_keys),
             incidence_offsets,
@@ -307,7 +327,15 @@ impl InternalForces {
         out: &mut [DVec3],
         mask: Option<(&ElementMask, bool)>,
     ) {
-        exec.for_each_chunk(out, &self.piece_bounds, &|k, chunk: &mut [DVec3]| {
+        let mut chunks: Vec<Option<(usize, &mut [DVec3])>> =
+            (split_chunks(out, &self.piece_bounds).into_iter())
+                .map(Some)
+                .collect();
+        let mut in_order: Vec<(usize, &mut [DVec3])> = (self.piece_order.iter())
+            .map(|&k| chunks[k as usize].take().expect("each piece once"))
+            .collect();
+        exec.for_each_item(&mut in_order, &|_, (k, chunk)| {
+            let (k, chunk) = (*k, &mut **chunk);
             let piece = &self.pieces[k];
             if let Some((m, want)) = mask {
                 let all = piece.stretch.len() + piece.hinges.len();
