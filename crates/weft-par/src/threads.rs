@@ -236,9 +236,8 @@ impl Threads {
     /// Runs `task(i)` for every `i` in `0..n` once, on the pool: the
     /// calling thread takes indices from the front and one helper job per
     /// other worker from the back ([`claim`]); the caller, its share done,
-    /// waits for
-    /// the indices taken elsewhere by running whatever work the pool has
-    /// (a nested loop's pieces among it) and spinning ([`Backoff`]),
+    /// waits for the indices taken elsewhere by running whatever work the
+    /// pool has (a nested loop's pieces among it) and spinning ([`Backoff`]),
     /// instead of sleeping in rayon's wait. A panic in a task ends the
     /// wait and reaches the caller through the scope.
     fn team(&self, n: usize, task: &(dyn Fn(usize) + Sync)) {
