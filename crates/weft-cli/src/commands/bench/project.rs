@@ -13,9 +13,10 @@
 //!   4.1's nonblocking collectives do; with `--collectives tree`,
 //!   recursive doubling: `⌈log2 R⌉ (L + 2o) + G S (R-1)/R`); an all-to-all
 //!   hands every rank every rank's head of `h` bytes as an all-gather of
-//!   `h R` bytes and then its parts as point-to-point messages; a point-to-point message leaves after the
-//!   sender's overhead `o` and arrives `L + G b` later, and the receiver
-//!   pays `o` (no overlap of work and messages is credited). So the replay
+//!   `h R` bytes and then its parts as point-to-point messages; a
+//!   point-to-point message leaves after the sender's overhead `o` and
+//!   arrives `L + G b` later, and the receiver pays `o` (no overlap of work
+//!   and messages is credited). So the replay
 //!   keeps the measured load imbalance between every two collectives, which
 //!   a per-window sum would average away.
 //! * **Projection** ([`project`]) to rank counts not measured: the engine's
