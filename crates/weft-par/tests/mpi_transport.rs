@@ -54,11 +54,16 @@ fn tail(s: &str) -> &str {
     &s[start..]
 }
 
-/// Runs this binary's test `test` on [`RANKS`] ranks under mpirun, with the
+/// Runs this binary's test `test` on [`RANKS`] ranks under mpirun ([`mpirun_n`]).
+fn mpirun(test: &str) -> Run {
+    mpirun_n(test, RANKS)
+}
+
+/// Runs this binary's test `test` on `ranks` ranks under mpirun, with the
 /// environment OpenMPI needs here (set for the child, whatever the caller's
 /// environment has): root allowed, more ranks than cores allowed, no
 /// single-copy mechanism (containers forbid it).
-fn mpirun(test: &str) -> Run {
+fn mpirun_n(test: &str, ranks: usize) -> Run {
     let exe = std::env::current_exe().expect("the test binary's path");
     let dir = std::env::temp_dir();
     let stem = format!("weft-mpi-{}-{test}", std::process::id());
@@ -70,7 +75,7 @@ fn mpirun(test: &str) -> Run {
     let err = std::fs::File::create(&err_path).expect("create stderr file");
     let mpirun = std::env::var_os("WEFT_MPIRUN").unwrap_or_else(|| "mpirun".into());
     let mut child = Command::new(&mpirun)
-        .args(["-n", &RANKS.to_string(), "--bind-to", "none"])
+        .args(["-n", &ranks.to_string(), "--bind-to", "none"])
         .arg(&exe)
         .args(["--exact", test, "--nocapture", "--test-threads", "1"])
         .env("WEFT_MPI_CHILD", "1")
@@ -137,15 +142,41 @@ fn part(rank: usize, round: usize) -> Vec<u8> {
 
 const ROUNDS: usize = 20;
 
+/// The collective tests' rank count: enough for Bruck's rounds to carry
+/// several blocks (`c = 1, 2, 1` over rounds `d = 1, 2, 4`).
+const GATHER_RANKS: usize = 5;
+
+/// The pieces a gather round's message is cut into in the collective
+/// tests: the 1 MB parts travel in many.
+const LIMIT: usize = 100_000;
+
+/// What rank `rank` of `size` sends in one Bruck all-gather of blocks of
+/// `lens[j]` bytes (rank `j`'s), messages cut at [`LIMIT`]: (messages,
+/// bytes). Round `d` sends the blocks of ranks `rank .. rank + min(d, R - d)`,
+/// each with its length as a `u64`; a message of `n` bytes is `n / LIMIT + 1`
+/// pieces (the last one shorter, possibly empty).
+fn bruck_sent(rank: usize, size: usize, lens: &[usize]) -> (u64, u64) {
+    let (mut messages, mut bytes) = (0u64, 0u64);
+    let mut d = 1;
+    while d < size {
+        let c = d.min(size - d);
+        let n: usize = (0..c).map(|i| 8 + lens[(rank + i) % size]).sum();
+        messages += (n / LIMIT + 1) as u64;
+        bytes += n as u64;
+        d *= 2;
+    }
+    (messages, bytes)
+}
+
 #[test]
-fn all_gather_over_mpi_on_three_ranks() {
+fn all_gather_over_mpi_on_five_ranks() {
     if !is_child() {
-        let run = mpirun("all_gather_over_mpi_on_three_ranks");
+        let run = mpirun_n("all_gather_over_mpi_on_five_ranks", GATHER_RANKS);
         assert!(run.status.is_some_and(|s| s.success()), "{}", run.report());
-        for rank in 0..RANKS {
+        for rank in 0..GATHER_RANKS {
             assert!(
                 run.stdout
-                    .contains(&format!("rank {rank}/{RANKS}: {ROUNDS} rounds ok")),
+                    .contains(&format!("rank {rank}/{GATHER_RANKS}: {ROUNDS} rounds ok")),
                 "rank {rank} did not report\n{}",
                 run.report()
             );
@@ -153,20 +184,29 @@ fn all_gather_over_mpi_on_three_ranks() {
         return;
     }
 
-    let transport = MpiTransport::init().expect("initialize MPI");
+    let mut transport = MpiTransport::init().expect("initialize MPI");
     assert!(
         MpiTransport::init().is_err(),
         "MPI must not initialize twice"
     );
+    transport.set_message_limit(LIMIT);
     let (rank, size) = (transport.rank(), transport.size());
-    assert_eq!(size, RANKS);
+    assert_eq!(size, GATHER_RANKS);
     assert!(rank < size);
 
-    let mut bytes_sent = 0u64;
+    let (mut messages, mut bytes) = (0u64, 0u64);
+    let mut gather = |lens: &[usize], all: Vec<Vec<u8>>| {
+        let sent = bruck_sent(rank, size, lens);
+        messages += sent.0;
+        bytes += sent.1;
+        all
+    };
     for round in 0..ROUNDS {
-        let mine = part(rank, round);
-        bytes_sent += (size as u64 - 1) * mine.len() as u64;
-        let all = transport.all_gather(mine).expect("all_gather");
+        let lens: Vec<usize> = (0..size).map(|j| part(j, round).len()).collect();
+        let all = gather(
+            &lens,
+            transport.all_gather(part(rank, round)).expect("all_gather"),
+        );
         assert_eq!(all.len(), size, "round {round}");
         for (j, got) in all.iter().enumerate() {
             let want = part(j, round);
@@ -182,14 +222,29 @@ fn all_gather_over_mpi_on_three_ranks() {
     assert!((0..ROUNDS).any(|r| part(rank, r).is_empty()));
     assert!((0..ROUNDS).any(|r| part(rank, r).len() > 1_000_000));
 
-    // A round in which nobody sends a byte (OpenMPI refuses an all-gather
-    // into an empty buffer; the transport must not make one).
-    let nothing = transport.all_gather(Vec::new()).expect("all-empty round");
+    // A round in which nobody sends a byte.
+    let nothing = gather(
+        &[0; GATHER_RANKS],
+        transport.all_gather(Vec::new()).expect("all-empty round"),
+    );
     assert_eq!(nothing, vec![Vec::<u8>::new(); size]);
 
+    // Every round's message exactly a whole number of pieces: each ends
+    // with an empty one.
+    let exact = vec![LIMIT - 8; GATHER_RANKS];
+    let all = gather(
+        &exact,
+        transport
+            .all_gather(vec![rank as u8; LIMIT - 8])
+            .expect("exact pieces"),
+    );
+    for (j, got) in all.iter().enumerate() {
+        assert_eq!(got, &vec![j as u8; LIMIT - 8]);
+    }
+
     let traffic = transport.traffic();
-    assert_eq!(traffic.messages, ((ROUNDS + 1) * (size - 1)) as u64);
-    assert_eq!(traffic.bytes, bytes_sent);
+    assert_eq!((traffic.messages, traffic.bytes), (messages, bytes));
+    assert_eq!(traffic.collectives, ROUNDS as u64 + 2);
 
     // From another thread too (the thread level is Serialized, not Funneled).
     let from_thread = std::thread::scope(|s| {
@@ -268,7 +323,9 @@ fn exchange_over_mpi_on_three_ranks() {
             .expect("all_gather");
         assert_eq!(all[(rank + 1) % size], vec![round as u8; (rank + 1) % size]);
     }
-    let exchanged = transport.traffic().bytes - (ROUNDS * (size - 1) * rank) as u64;
+    let lens: Vec<usize> = (0..size).collect();
+    let gathered = ROUNDS as u64 * bruck_sent(rank, size, &lens).1;
+    let exchanged = transport.traffic().bytes - gathered;
     assert_eq!(exchanged, expected_bytes);
     transport.barrier();
     println!("rank {rank}/{size}: {ROUNDS} exchanges ok");
@@ -276,14 +333,15 @@ fn exchange_over_mpi_on_three_ranks() {
 }
 
 #[test]
-fn all_to_all_over_mpi_on_three_ranks() {
+fn all_to_all_over_mpi_on_five_ranks() {
     if !is_child() {
-        let run = mpirun("all_to_all_over_mpi_on_three_ranks");
+        let run = mpirun_n("all_to_all_over_mpi_on_five_ranks", GATHER_RANKS);
         assert!(run.status.is_some_and(|s| s.success()), "{}", run.report());
-        for rank in 0..RANKS {
+        for rank in 0..GATHER_RANKS {
             assert!(
-                run.stdout
-                    .contains(&format!("rank {rank}/{RANKS}: {ROUNDS} all-to-alls ok")),
+                run.stdout.contains(&format!(
+                    "rank {rank}/{GATHER_RANKS}: {ROUNDS} all-to-alls ok"
+                )),
                 "rank {rank} did not report\n{}",
                 run.report()
             );
@@ -291,7 +349,8 @@ fn all_to_all_over_mpi_on_three_ranks() {
         return;
     }
 
-    let transport = MpiTransport::init().expect("initialize MPI");
+    let mut transport = MpiTransport::init().expect("initialize MPI");
+    transport.set_message_limit(LIMIT);
     let (rank, size) = (transport.rank(), transport.size());
     let (mut messages, mut bytes) = (0u64, 0u64);
     for round in 0..ROUNDS {
@@ -303,11 +362,24 @@ fn all_to_all_over_mpi_on_three_ranks() {
             .collect();
         let parts: Vec<Vec<u8>> = (0..size).map(|j| message(rank, j, round)).collect();
         for (j, p) in parts.iter().enumerate() {
-            if j != rank {
-                messages += 1 + u64::from(!p.is_empty());
-                bytes += 8 * (1 + head.len() as u64) + p.len() as u64;
+            if j != rank && !p.is_empty() {
+                messages += 1;
+                bytes += p.len() as u64;
             }
         }
+        // The gathered head blocks: a flag, the word count, the head, the
+        // count of non-empty parts to others and a peer and length each.
+        let blocks: Vec<usize> = (0..size)
+            .map(|j| {
+                let sent = (0..size)
+                    .filter(|&k| k != j && !message(j, k, round).is_empty())
+                    .count();
+                8 * (3 + head.len() + 2 * sent)
+            })
+            .collect();
+        let gathered = bruck_sent(rank, size, &blocks);
+        messages += gathered.0;
+        bytes += gathered.1;
         // Pieces of work run while the messages travel, at most the five
         // offered.
         let mut overlapped = 0;

@@ -9,6 +9,7 @@
 //! | `mpi` (feature `mpi`) | `MpiTransport`: the [`Transport`] over MPI, nonblocking collectives and `Isend`/`Irecv` polled with a back-off |
 //! | [`mod@internal`] | internal-force ticks over ranks: ghost exchange overlapped with interior work, slot exchange, ordered folds |
 
+pub mod dissemination;
 pub mod executor;
 pub mod internal;
 #[cfg(feature = "mpi")]

@@ -1,13 +1,15 @@
 //! [`Transport`] over MPI (feature `mpi`): ranks are processes started by
-//! `mpirun`, and [`Transport::all_gather`] is two nonblocking MPI
-//! collectives.
+//! `mpirun`. The collectives are weft's own, Bruck's all-gather in
+//! `⌈log2 R⌉` rounds of point-to-point messages ([`dissemination`]): Open
+//! MPI 4.1's nonblocking ones send `R - 1` messages each way.
 //!
 //! The project's rule is **never block in an MPI wait inside a thread-pool
 //! task**: the simulation loop runs on a rayon pool thread, and a blocking
 //! `MPI_Wait` there would also stall whatever that thread is asked to help
-//! with. So every collective here is started as an immediate (nonblocking)
-//! operation and completed by polling `MPI_Test` with a back-off (spin, then
-//! yield for a few milliseconds, then sleep growing to 200 µs).
+//! with. So every operation here is started as an immediate (nonblocking)
+//! one and completed by polling `MPI_Test` (or `MPI_Improbe`, for a message
+//! whose length only its sender knows) with a back-off (spin, then yield for
+//! a few milliseconds, then sleep growing to 200 µs).
 //!
 //! MPI is initialized with thread level `MPI_THREAD_SERIALIZED`: any thread
 //! may call into MPI, one at a time. [`MpiTransport`] enforces that itself: a
@@ -24,13 +26,13 @@
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
-use mpi::datatype::PartitionMut;
 use mpi::environment::Universe;
 use mpi::point_to_point::Status;
 use mpi::request::{Request, Scope};
 use mpi::traits::*;
 use mpi::{Count, Threading};
 
+use super::dissemination;
 use super::transport::{HeadsAndParts, RankFailure, Traffic, TrafficCounter, Transport};
 
 /// This process's rank in `MPI_COMM_WORLD`, as a [`Transport`].
@@ -52,6 +54,9 @@ pub struct MpiTransport {
     rank: usize,
     size: usize,
     sent: TrafficCounter,
+    /// The largest piece of a gather round's message, in bytes
+    /// ([`MpiTransport::set_message_limit`]).
+    message_limit: usize,
 }
 
 impl MpiTransport {
@@ -82,6 +87,7 @@ impl MpiTransport {
             rank,
             size,
             sent: TrafficCounter::default(),
+            message_limit: Self::DEFAULT_MESSAGE_LIMIT,
         })
     }
 
@@ -171,6 +177,110 @@ impl MpiTransport {
             what,
         }
     }
+
+    /// One round of a gather ([`dissemination`]): sends `bytes` to rank
+    /// `to` and returns this round's message from rank `from` (tag
+    /// [`ROUND_TAG`]), whose length only the sender knows: it is probed
+    /// (`MPI_Improbe`, polled with `work` and then the back-off) and
+    /// received into a buffer of that length (`MPI_Imrecv`). A message
+    /// travels in pieces of at most [`MpiTransport::message_limit`] bytes
+    /// (MPI counts are C `int`s), the last one shorter, empty where need
+    /// be, which tells the receiver it is the last. Messages with one
+    /// source, tag and communicator stay in order, so the pieces, and the
+    /// rounds of consecutive collectives, never mix.
+    fn round(
+        &self,
+        to: usize,
+        bytes: Vec<u8>,
+        from: usize,
+        work: &mut dyn FnMut() -> bool,
+    ) -> Vec<u8> {
+        let limit = self.message_limit;
+        let pieces: Vec<&[u8]> = bytes
+            .chunks(limit)
+            .chain((bytes.len() % limit == 0).then_some(&[][..]))
+            .collect();
+        self.sent.add(pieces.len() as u64, bytes.len() as u64);
+        mpi::request::scope(|scope| {
+            let sent: Vec<_> = (pieces.iter())
+                .map(|piece| {
+                    let world = self.mpi_call().world();
+                    world
+                        .process_at_rank(to as mpi::Rank)
+                        .immediate_send_with_tag(scope, *piece, ROUND_TAG)
+                })
+                .collect();
+            let mut got = Vec::new();
+            loop {
+                let (message, status) = self.probe_while(from, ROUND_TAG, work);
+                let count = usize::try_from(status.count(u8::equivalent_datatype()))
+                    .expect("a message's count is not negative");
+                let start = got.len();
+                got.resize(start + count, 0u8);
+                mpi::request::scope(|arrival| {
+                    let request = {
+                        let _call = self.mpi_call();
+                        message.immediate_matched_receive_into(arrival, &mut got[start..])
+                    };
+                    self.complete(request);
+                });
+                if count < limit {
+                    break;
+                }
+            }
+            for request in sent {
+                self.complete(request);
+            }
+            got
+        })
+    }
+
+    /// The next message from rank `from` with tag `tag`, matched
+    /// (`MPI_Improbe`): polled while `work` runs pieces, then with the
+    /// back-off, counted as waiting.
+    fn probe_while(
+        &self,
+        from: usize,
+        tag: mpi::Tag,
+        work: &mut dyn FnMut() -> bool,
+    ) -> (mpi::point_to_point::Message, Status) {
+        let probe = || {
+            let universe = self.mpi_call();
+            let world = universe.world();
+            let found = world
+                .process_at_rank(from as mpi::Rank)
+                .immediate_matched_probe_with_tag(tag);
+            found
+        };
+        loop {
+            if let Some(found) = probe() {
+                return found;
+            }
+            if !work() {
+                break;
+            }
+        }
+        self.sent.waiting(|| {
+            let mut backoff = Backoff::default();
+            loop {
+                if let Some(found) = probe() {
+                    return found;
+                }
+                backoff.snooze();
+            }
+        })
+    }
+
+    /// Splits every message of a gather's round into pieces of at most
+    /// `bytes` bytes (default [`MpiTransport::DEFAULT_MESSAGE_LIMIT`], 1 GiB;
+    /// below 2 GiB, the most an MPI count holds). Small limits are for
+    /// tests: every rank must use the same.
+    pub fn set_message_limit(&mut self, bytes: usize) {
+        self.message_limit = bytes.clamp(1, Self::DEFAULT_MESSAGE_LIMIT);
+    }
+
+    /// See [`MpiTransport::set_message_limit`].
+    pub const DEFAULT_MESSAGE_LIMIT: usize = 1 << 30;
 }
 
 /// Dropping it finalizes MPI (`MPI_Finalize`, which waits for every rank to
@@ -201,85 +311,30 @@ impl Transport for MpiTransport {
         self.size
     }
 
-    /// **Collective**, made of two nonblocking MPI collectives, each
-    /// completed by polling: an `MPI_Iallgather` of every rank's length (one
-    /// `u64` each), then an `MPI_Iallgatherv` of the bytes. Every rank learns
-    /// all lengths before the second, so all agree on whether it can go on:
-    /// MPI counts are C `int`s, and a gather of 2 GiB or more in all is an
-    /// error on every rank alike.
+    /// **Collective**: Bruck's all-gather ([`dissemination`]), `⌈log2 R⌉`
+    /// rounds of one message each way (`MpiTransport::round`), not Open
+    /// MPI's linear `MPI_Iallgather`.
     fn all_gather(&self, mine: Vec<u8>) -> Result<Vec<Vec<u8>>, RankFailure> {
         let _collective = self
             .collective
             .lock()
             .unwrap_or_else(PoisonError::into_inner);
-        let size = self.size;
-
-        // Collective 1: the lengths.
-        let my_len = mine.len() as u64;
-        let mut lens = vec![0u64; size];
-        mpi::request::scope(|scope| {
-            let request =
-                self.mpi_call()
-                    .world()
-                    .immediate_all_gather_into(scope, &my_len, &mut lens[..]);
-            self.complete(request);
-        });
-
-        let mut counts: Vec<Count> = Vec::with_capacity(size);
-        let mut displs: Vec<Count> = Vec::with_capacity(size);
-        let mut total: Count = 0;
-        for (j, &len) in lens.iter().enumerate() {
-            let count = Count::try_from(len)
-                .ok()
-                .filter(|&c| total.checked_add(c).is_some())
-                .ok_or_else(|| {
-                    self.failure(format!(
-                        "all-gather too large for MPI: rank {j} sends {len} bytes, \
-                         {total} bytes before it (the total must stay below 2 GiB)"
-                    ))
-                })?;
-            counts.push(count);
-            displs.push(total);
-            total += count;
-        }
-
-        // Collective 2: the bytes, each rank's at its displacement. Skipped
-        // on every rank alike when nobody sends a byte: OpenMPI rejects an
-        // all-gather into an empty buffer (MPI_ERR_ARG).
-        let mut all = vec![0u8; total as usize];
-        if total > 0 {
-            let mut partition = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
-            mpi::request::scope(|scope| {
-                let request = self.mpi_call().world().immediate_all_gather_varcount_into(
-                    scope,
-                    &mine[..],
-                    &mut partition,
-                );
-                self.complete(request);
-            });
-        }
-
-        let peers = size.saturating_sub(1) as u64;
-        self.sent.add(peers, peers * my_len);
+        let all = dissemination::all_gather(self.rank, self.size, mine, &mut |to, bytes, from| {
+            Ok(self.round(to, bytes, from, &mut || false))
+        })?;
         self.sent.collective();
-
-        let mut parts: Vec<Vec<u8>> = counts
-            .iter()
-            .zip(&displs)
-            .map(|(&c, &d)| all[d as usize..(d + c) as usize].to_vec())
-            .collect();
-        parts[self.rank] = mine;
-        Ok(parts)
+        Ok(all)
     }
 
-    /// **Collective**: an `MPI_Ialltoall` of each rank's head and each
-    /// part's length (`2 + head.len()` words to every rank: the length, a
-    /// flag, the head), completed by polling, then the non-empty parts point
-    /// to point (tag [`ALL_TO_ALL_TAG`]; their lengths are known to both
-    /// sides by then). A rank whose part is too large for MPI still takes
-    /// part in the dense step, with its flag set: every rank then learns it,
-    /// none posts a part, and all fail alike (a rank that returned early
-    /// would leave the others waiting in the collective).
+    /// **Collective**: the non-empty parts leave point to point (tag
+    /// [`ALL_TO_ALL_TAG`]), every rank's head and its parts' lengths are
+    /// all-gathered (`dissemination::head_block`, Bruck's rounds) while
+    /// they travel and `overlap` runs, then the announced parts are
+    /// received. A rank whose part is too large for MPI still takes part in
+    /// the gather, with its flag set and no part sent: every rank then
+    /// learns it and all fail alike (a rank that returned early would leave
+    /// the others waiting). Every announced part is received and every send
+    /// completed before that, so no request is left behind.
     fn all_to_all(
         &self,
         head: Vec<u64>,
@@ -298,28 +353,9 @@ impl Transport for MpiTransport {
             )));
         }
         let too_large = parts.iter().position(|p| Count::try_from(p.len()).is_err());
-        let words = head.len() + 2;
-        let send: Vec<u64> = (0..size)
-            .flat_map(|j| {
-                let len = if too_large.is_some() {
-                    0
-                } else {
-                    parts[j].len() as u64
-                };
-                [len, u64::from(too_large.is_some())]
-                    .into_iter()
-                    .chain(head.iter().copied())
-            })
-            .collect();
-        let mut recv = vec![0u64; words * size];
-        // The parts leave with the heads (none from a rank with a part too
-        // large: its head says so, with lengths 0), `overlap` runs while
-        // they travel, then the heads are completed and the parts announced
-        // received. Every announced part is received and every send
-        // completed, also when a rank then reports a part too large, so no
-        // request is left behind.
+        let block = dissemination::head_block(me, &head, &parts, too_large.is_some());
         let mut overlap = super::transport::pieces(overlap);
-        let (counts, mut received) = mpi::request::scope(|scope| {
+        let outcome = mpi::request::scope(|scope| {
             let mut sent = Vec::new();
             for (j, part) in parts.iter().enumerate() {
                 if too_large.is_none() && j != me && !part.is_empty() {
@@ -329,75 +365,69 @@ impl Transport for MpiTransport {
                             .process_at_rank(j as mpi::Rank)
                             .immediate_send_with_tag(scope, &part[..], ALL_TO_ALL_TAG),
                     );
+                    self.sent.add(1, part.len() as u64);
                 }
             }
-            mpi::request::scope(|heads| {
-                let request = self.mpi_call().world().immediate_all_to_all_into(
-                    heads,
-                    &send[..],
-                    &mut recv[..],
-                );
-                self.complete_while(request, &mut overlap);
-            });
-            let mut received: Vec<Vec<u8>> = (recv.chunks_exact(words).enumerate())
-                .map(|(j, c)| vec![0u8; if j == me { 0 } else { c[0] as usize }])
-                .collect();
-            let counts = mpi::request::scope(|arrivals| {
-                let mut arriving = Vec::new();
-                for (j, buffer) in received.iter_mut().enumerate() {
-                    if !buffer.is_empty() {
-                        let world = self.mpi_call().world();
-                        let request = world
-                            .process_at_rank(j as mpi::Rank)
-                            .immediate_receive_into_with_tag(
-                                arrivals,
-                                &mut buffer[..],
-                                ALL_TO_ALL_TAG,
-                            );
-                        arriving.push((j, request));
+            let gathered = dissemination::all_gather(me, size, block, &mut |to, bytes, from| {
+                Ok(self.round(to, bytes, from, &mut overlap))
+            })
+            .and_then(|blocks| dissemination::read_heads(me, head.len(), &blocks));
+            let outcome = gathered.map(|gathered| {
+                let mut received: Vec<Vec<u8>> = gathered
+                    .incoming
+                    .iter()
+                    .map(|&len| vec![0u8; len])
+                    .collect();
+                let counts = mpi::request::scope(|arrivals| {
+                    let mut arriving = Vec::new();
+                    for (j, buffer) in received.iter_mut().enumerate() {
+                        if j != me && !buffer.is_empty() {
+                            let world = self.mpi_call().world();
+                            let request = world
+                                .process_at_rank(j as mpi::Rank)
+                                .immediate_receive_into_with_tag(
+                                    arrivals,
+                                    &mut buffer[..],
+                                    ALL_TO_ALL_TAG,
+                                );
+                            arriving.push((j, request));
+                        }
                     }
-                }
-                (arriving.into_iter())
-                    .map(|(j, request)| {
-                        let status = self.complete_while(request, &mut overlap);
-                        (j, status.count(u8::equivalent_datatype()))
-                    })
-                    .collect::<Vec<(usize, Count)>>()
+                    (arriving.into_iter())
+                        .map(|(j, request)| {
+                            let status = self.complete_while(request, &mut overlap);
+                            (j, status.count(u8::equivalent_datatype()))
+                        })
+                        .collect::<Vec<(usize, Count)>>()
+                });
+                (gathered, received, counts)
             });
             for request in sent {
                 self.complete(request);
             }
-            (counts, received)
+            outcome
         });
+        let (gathered, mut received, counts) = outcome?;
         if let Some(j) = too_large {
             return Err(self.failure(format!(
                 "{} bytes to rank {j}: too large for MPI",
                 parts[j].len()
             )));
         }
-        if let Some(j) = recv.chunks_exact(words).position(|c| c[1] != 0) {
+        if let Some(j) = gathered.too_large {
             return Err(self.failure(format!(
                 "rank {j} had a part too large for MPI in an all-to-all"
             )));
         }
-        let heads: Vec<Vec<u64>> = recv.chunks_exact(words).map(|c| c[2..].to_vec()).collect();
-        let lens: Vec<usize> = recv.chunks_exact(words).map(|c| c[0] as usize).collect();
         for (j, count) in counts {
-            if usize::try_from(count).ok() != Some(lens[j]) {
-                return Err(
-                    self.failure(format!("rank {j} sent {count} bytes, {} expected", lens[j]))
-                );
-            }
-        }
-        let peers = size.saturating_sub(1) as u64;
-        // (Counted as the head and length the channel transport sends.)
-        self.sent.add(peers, peers * 8 * (words as u64 - 1));
-        for (j, part) in parts.iter().enumerate() {
-            if j != me && !part.is_empty() {
-                self.sent.add(1, part.len() as u64);
+            let len = gathered.incoming[j];
+            if usize::try_from(count).ok() != Some(len) {
+                return Err(self.failure(format!("rank {j} sent {count} bytes, {len} expected")));
             }
         }
         self.sent.collective();
+        let mut heads = gathered.heads;
+        heads[me] = head;
         received[me] = std::mem::take(&mut parts[me]);
         Ok((heads, received))
     }
@@ -492,6 +522,9 @@ pub const EXCHANGE_TAG: mpi::Tag = 7;
 
 /// The tag of [`Transport::all_to_all`]'s parts.
 pub const ALL_TO_ALL_TAG: mpi::Tag = 8;
+
+/// The tag of the collectives' rounds ([`dissemination`]).
+pub const ROUND_TAG: mpi::Tag = 9;
 
 /// Waiting between polls: a few spins first (a collective among ranks on
 /// one machine often completes within microseconds), then yields, then

@@ -1,7 +1,7 @@
-//! How ranks talk: the one collective the distributed executor needs, and its
-//! in-process implementation over channels.
+//! How ranks talk: the collectives and exchanges the distributed executor
+//! needs, and their in-process implementation over channels.
 //!
-//! The [`crate::Ranks`] executor communicates in two ways:
+//! The [`crate::Ranks`] executor communicates in three ways:
 //!
 //! * [`Transport::all_gather`]: every rank contributes a byte string and
 //!   receives every rank's, in rank order. It is a **collective**: every rank
@@ -12,16 +12,21 @@
 //!   every rank a few words (its *head*, the same for all) and each peer its
 //!   own byte string, empty ones sending nothing: what a rank computed for
 //!   the vertices another rank keeps, with what every rank must agree on.
+//!
+//! Both collectives gather in `⌈log2 R⌉` rounds of point-to-point messages
+//! ([`super::dissemination`]), not `R - 1` messages each way.
 //! * [`Transport::exchange`]: **point to point** between neighbours — byte
 //!   strings to some peers, from some peers, with work run while they travel.
 //!   Only the ranks named take part, each at the same point of its run.
 //!
 //! The MPI transport (feature `mpi`) implements the same trait with
-//! nonblocking MPI operations.
+//! nonblocking MPI point-to-point operations.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{channel, Receiver, Sender, TryRecvError};
 use std::sync::{Arc, Mutex};
+
+use super::dissemination;
 
 /// What an all-to-all brings a rank: every rank's head, in rank order, and
 /// the part each rank addressed to it.
@@ -110,8 +115,9 @@ pub trait Transport: Send + Sync {
     /// rank) and `parts`, one byte string per rank (`parts[j]` for rank `j`;
     /// its own is kept, not sent). Each gets every rank's head in rank order,
     /// and the part each rank addressed to it (its own `parts[rank]` in its
-    /// place). An empty part sends no message: the heads and the lengths
-    /// travel in one dense step, the parts point to point. While this rank
+    /// place). An empty part sends no message: the heads and the lengths of
+    /// the non-empty parts are all-gathered, the parts travel point to
+    /// point. While this rank
     /// waits for the others' heads and parts (its own on their way),
     /// `overlap` runs pieces of work that need none of them, one per call,
     /// until it returns `false` (no piece left) or everything has arrived;
@@ -201,8 +207,8 @@ pub struct SyncStep {
     /// A collective (every rank takes part: an all-gather, or an
     /// all-to-all when `head_bytes` is set); else a point-to-point exchange.
     pub collective: bool,
-    /// An all-to-all: the bytes of the head (and length) each rank hands
-    /// every peer in its dense step.
+    /// An all-to-all: the bytes of this rank's block of the gathered heads
+    /// (its head and its parts' lengths; it differs between ranks).
     pub head_bytes: Option<u64>,
     /// All-gather: this rank's part, in bytes. All-to-all and exchange: the
     /// bytes sent, per peer.
@@ -224,22 +230,6 @@ pub(crate) fn pieces(overlap: &mut dyn FnMut() -> bool) -> impl FnMut() -> bool 
         }
         ran
     }
-}
-
-/// The words of an all-to-all's head as bytes (little-endian), with the
-/// part's length first.
-pub(crate) fn head_bytes(len: usize, head: &[u64]) -> Vec<u8> {
-    std::iter::once(len as u64)
-        .chain(head.iter().copied())
-        .flat_map(u64::to_le_bytes)
-        .collect()
-}
-
-/// The words of an all-to-all head (length first) from its bytes.
-pub(crate) fn head_words(bytes: &[u8]) -> Vec<u64> {
-    (bytes.chunks_exact(8))
-        .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
-        .collect()
 }
 
 /// Where a rank's [`SyncStep`]s go while they are recorded.
@@ -421,6 +411,8 @@ impl Transport for ChannelTransport {
         self.to.len()
     }
 
+    /// Bruck's all-gather ([`dissemination`]): `⌈log2 R⌉` rounds, one
+    /// message each way a round.
     fn all_gather(&self, mine: Vec<u8>) -> Result<Vec<Vec<u8>>, RankFailure> {
         self.sent.collective();
         self.step(
@@ -429,28 +421,18 @@ impl Transport for ChannelTransport {
             vec![(self.rank as u32, mine.len() as u64)],
             Vec::new(),
         );
-        for j in 0..self.size() {
-            if j != self.rank {
-                self.send(j, mine.clone())?;
-            }
-        }
-        let mut all = Vec::with_capacity(self.size());
-        for j in 0..self.size() {
-            all.push(if j == self.rank {
-                Vec::new()
-            } else {
-                self.receive(j)?
-            });
-        }
-        all[self.rank] = mine;
-        Ok(all)
+        dissemination::all_gather(self.rank, self.size(), mine, &mut |to, bytes, from| {
+            self.send(to, bytes)?;
+            self.receive(from)
+        })
     }
 
-    /// The head (with the part's length) to every peer, then each
-    /// non-empty part: one message each, in that order on each pair's
-    /// channel, so the counts match the MPI transport's. Channels buffer:
-    /// the sends complete at once; each receive runs `overlap`'s pieces
-    /// while its message has not come.
+    /// The heads (with the lengths of the non-empty parts) gathered in
+    /// `⌈log2 R⌉` rounds ([`dissemination`]), then each non-empty part as a
+    /// message of its own. Channels buffer: the sends complete at once;
+    /// each receive runs `overlap`'s pieces while its message has not come.
+    /// A pair's channel carries its round message before its part, the
+    /// order in which the receiver takes them.
     fn all_to_all(
         &self,
         head: Vec<u64>,
@@ -465,38 +447,40 @@ impl Transport for ChannelTransport {
             });
         }
         self.sent.collective();
-        let others = |v: &[Vec<u8>]| -> Vec<(u32, u64)> {
-            (0..n)
-                .filter(|&j| j != self.rank && !v[j].is_empty())
-                .map(|j| (j as u32, v[j].len() as u64))
+        let others = |lens: &mut dyn Iterator<Item = (usize, usize)>| -> Vec<(u32, u64)> {
+            lens.filter(|&(j, len)| j != self.rank && len > 0)
+                .map(|(j, len)| (j as u32, len as u64))
                 .collect()
         };
-        let head_len = 8 * (head.len() as u64 + 1);
-        self.step(true, Some(head_len), others(&parts), Vec::new());
-        for j in (0..n).filter(|&j| j != self.rank) {
-            self.send(j, head_bytes(parts[j].len(), &head))?;
+        let block = dissemination::head_block(self.rank, &head, &parts, false);
+        self.step(
+            true,
+            Some(block.len() as u64),
+            others(&mut parts.iter().map(Vec::len).enumerate()),
+            Vec::new(),
+        );
+        let mut overlap = pieces(overlap);
+        let blocks = dissemination::all_gather(self.rank, n, block, &mut |to, bytes, from| {
+            self.send(to, bytes)?;
+            self.receive_while(from, &mut overlap)
+        })?;
+        let mut gathered = dissemination::read_heads(self.rank, head.len(), &blocks)?;
+        if let Some(j) = gathered.too_large {
+            // (Channels take parts of any length: only a peer on another
+            // transport's rules would flag one.)
+            return Err(RankFailure {
+                rank: self.rank,
+                what: format!("rank {j} had a part too large for its transport"),
+            });
         }
         for j in (0..n).filter(|&j| j != self.rank) {
             if !parts[j].is_empty() {
                 self.send(j, std::mem::take(&mut parts[j]))?;
             }
         }
-        let mut heads = vec![Vec::new(); n];
         let mut received = vec![Vec::new(); n];
-        let mut overlap = pieces(overlap);
         for j in (0..n).filter(|&j| j != self.rank) {
-            let words = head_words(&self.receive_while(j, &mut overlap)?);
-            if words.len() != head.len() + 1 {
-                return Err(RankFailure {
-                    rank: self.rank,
-                    what: format!(
-                        "rank {j} sent a head of {} words, {} expected",
-                        words.len().saturating_sub(1),
-                        head.len()
-                    ),
-                });
-            }
-            let len = words[0] as usize;
+            let len = gathered.incoming[j];
             if len > 0 {
                 received[j] = self.receive_while(j, &mut overlap)?;
                 if received[j].len() != len {
@@ -506,12 +490,11 @@ impl Transport for ChannelTransport {
                     });
                 }
             }
-            heads[j] = words[1..].to_vec();
         }
-        self.step_received(others(&received));
-        heads[self.rank] = head;
+        self.step_received(others(&mut gathered.incoming.iter().copied().enumerate()));
+        gathered.heads[self.rank] = head;
         received[self.rank] = std::mem::take(&mut parts[self.rank]);
-        Ok((heads, received))
+        Ok((gathered.heads, received))
     }
 
     fn exchange(
@@ -646,13 +629,14 @@ mod tests {
                 }
             }
         }
-        // Rank 1's first step, as recorded: a head of a length and two
-        // words to every peer; a byte to rank 0 and one from it (its parts
-        // with rank 2 are empty, and nothing travels for them).
+        // Rank 1's first step, as recorded: its block of the heads (the
+        // flag, the word count, two words, one part and its peer and
+        // length); a byte to rank 0 and one from it (its parts with rank 2
+        // are empty, and nothing travels for them).
         let steps = sink.lock().unwrap();
         let first = &steps[0];
         assert!(first.collective);
-        assert_eq!(first.head_bytes, Some(24));
+        assert_eq!(first.head_bytes, Some(8 * 7));
         assert_eq!(first.sent, vec![(0, 1)]);
         assert_eq!(first.received, vec![(0, 1)]);
         // a part list of the wrong length is an error
@@ -661,6 +645,59 @@ mod tests {
             .all_to_all(vec![], vec![vec![]], &mut || false)
             .unwrap_err();
         assert!(err.to_string().contains("1 parts for 2 ranks"), "{err}");
+    }
+
+    #[test]
+    fn collectives_on_many_ranks_carry_several_blocks_a_round_and_keep_parts_apart() {
+        // 11 ranks: Bruck's rounds d = 1, 2, 4, 8 carry 1, 2, 4 and 3
+        // blocks. Rank r sends rank j a part of (r * j + round) % 4 bytes
+        // (some empty), with a head of r and the round, and exchanges with
+        // its ring neighbours between the collectives, so that a pair's
+        // channel carries round messages, parts and exchanges in turn.
+        let n = 11;
+        let transports = ChannelTransport::connected(n);
+        let results = on_each_rank(&transports, |t| {
+            let r = t.rank();
+            (0..4usize)
+                .map(|round| {
+                    let parts = (0..n)
+                        .map(|j| vec![(r + 16 * j) as u8; (r * j + round) % 4])
+                        .collect();
+                    let got = t
+                        .all_to_all(vec![r as u64, round as u64], parts, &mut || false)
+                        .unwrap();
+                    let (next, prev) = ((r + 1) % n, (r + n - 1) % n);
+                    let ring = t
+                        .exchange(vec![(next, vec![r as u8; 3])], &[(prev, 3)], &mut || {})
+                        .unwrap();
+                    assert_eq!(ring, vec![vec![prev as u8; 3]]);
+                    let all = t.all_gather(vec![r as u8; (r + round) % 3]).unwrap();
+                    (got, all)
+                })
+                .collect::<Vec<_>>()
+        });
+        for (r, rounds) in results.iter().enumerate() {
+            for (round, ((heads, parts), all)) in rounds.iter().enumerate() {
+                for j in 0..n {
+                    assert_eq!(heads[j], vec![j as u64, round as u64]);
+                    let len = (j * r + round) % 4;
+                    assert_eq!(parts[j], vec![(j + 16 * r) as u8; len], "{r} from {j}");
+                    assert_eq!(all[j], vec![j as u8; (j + round) % 3]);
+                }
+            }
+        }
+        // Two collectives and an exchange a round: 4 messages a gather,
+        // the ring's one, and the non-empty parts to others.
+        for (r, t) in transports.iter().enumerate() {
+            let parts: u64 = (0..4usize)
+                .map(|round| {
+                    (0..n)
+                        .filter(|&j| j != r && (r * j + round) % 4 > 0)
+                        .count() as u64
+                })
+                .sum();
+            assert_eq!(t.traffic().messages, 4 * (4 + 4 + 1) + parts, "rank {r}");
+        }
     }
 
     #[test]

@@ -106,10 +106,10 @@ pub struct BenchArgs {
     /// The projection's bandwidth per rank, GB/s.
     #[arg(long, value_name = "GB/S", default_value_t = 25.0)]
     pub bandwidth_gbs: f64,
-    /// How the projection's nonblocking collectives travel: `linear`, each
-    /// rank's part to every other rank (Open MPI 4.1's `coll/libnbc`, which
-    /// weft's MPI transport calls), or `tree`, recursive doubling.
-    #[arg(long, value_enum, default_value = "linear")]
+    /// How the projection's collectives travel: `dissemination`, Bruck's
+    /// `⌈log2 R⌉` rounds, as weft's transports run them, or `linear`, each
+    /// rank's part to every other rank (Open MPI 4.1's nonblocking ones).
+    #[arg(long, value_enum, default_value = "dissemination")]
     pub collectives: project::Collectives,
 }
 
@@ -1396,7 +1396,7 @@ fn table(r: &BenchReport) -> String {
             1e-9 / p.network.seconds_per_byte,
             match p.network.collectives {
                 project::Collectives::Linear => "linear",
-                project::Collectives::Tree => "tree",
+                project::Collectives::Dissemination => "dissemination",
             }
         );
         for (ranks, replay, critical) in &p.replayed {

@@ -8,12 +8,13 @@
 //!
 //! * **Replay** ([`replay`]) of one measured run under a LogGP network: each
 //!   rank's clock advances by its measured work; an all-gather starts when
-//!   the last rank reaches it and takes `L + 2 (R-1) o + G S (R-1)/R` for
-//!   `S` bytes in all (each rank's part to each other rank, as Open MPI
-//!   4.1's nonblocking collectives do; with `--collectives tree`,
-//!   recursive doubling: `⌈log2 R⌉ (L + 2o) + G S (R-1)/R`); an all-to-all
-//!   hands every rank every rank's head of `h` bytes as an all-gather of
-//!   `h R` bytes and then its parts as point-to-point messages; a
+//!   the last rank reaches it and takes `⌈log2 R⌉ (L + 2o) + G S (R-1)/R`
+//!   for `S` bytes in all (Bruck's rounds, as weft's transports gather:
+//!   `weft_par::ranks::dissemination`; with `--collectives linear`, each
+//!   rank's part to each other rank, `L + 2 (R-1) o + G S (R-1)/R`, as Open
+//!   MPI 4.1's nonblocking collectives would); an all-to-all
+//!   all-gathers every rank's block of its head and its parts' lengths and
+//!   then moves its parts as point-to-point messages; a
 //!   point-to-point message leaves after the sender's overhead `o` and
 //!   arrives `L + G b` later, and the receiver pays `o` (no overlap of work
 //!   and messages is credited). So the replay
@@ -60,13 +61,17 @@ pub struct Network {
 pub enum Collectives {
     // (Plain comments: doc comments would turn `weft bench --help` into
     // clap's long layout.)
+    // Bruck's all-gather, `⌈log2 R⌉` rounds of one message each way: how
+    // weft's transports run their collectives
+    // (`weft_par::ranks::dissemination`). (`tree`: the name before.)
+    #[value(alias = "tree")]
+    #[serde(rename = "dissemination")]
+    Dissemination,
     // Every rank sends its part to every other rank, `R - 1` messages each
     // way: Open MPI 4.1's `MPI_Iallgather` and `MPI_Ialltoall`
-    // (`coll/libnbc`), which weft's MPI transport calls.
+    // (`coll/libnbc`), which weft's MPI transport called before it had
+    // its own.
     Linear,
-    // Recursive doubling, `⌈log2 R⌉` rounds: what a library with tree or
-    // dissemination algorithms for them would take.
-    Tree,
 }
 
 impl Network {
@@ -77,16 +82,16 @@ impl Network {
     }
 
     /// An all-gather of `total` bytes over `ranks` ranks (each rank
-    /// receives all but its own part): recursive doubling, `⌈log2 R⌉`
-    /// rounds of `L + 2o`; or linear, the `R - 1` messages each way in
-    /// flight together, an overhead `o` for each and one latency.
+    /// receives all but its own part): Bruck's, `⌈log2 R⌉` rounds of
+    /// `L + 2o`; or linear, the `R - 1` messages each way in flight
+    /// together, an overhead `o` for each and one latency.
     fn all_gather(&self, ranks: usize, total: f64) -> f64 {
         if ranks <= 1 {
             return 0.0;
         }
         let others = (ranks - 1) as f64;
         let messages = match self.collectives {
-            Collectives::Tree => {
+            Collectives::Dissemination => {
                 (ranks as f64).log2().ceil() * (self.latency + 2.0 * self.overhead)
             }
             Collectives::Linear => self.latency + 2.0 * others * self.overhead,
@@ -96,8 +101,9 @@ impl Network {
 }
 
 impl Network {
-    /// The dense step of an all-to-all: every rank's head of `head` bytes
-    /// to every rank (as an all-gather of them).
+    /// The gathered heads of an all-to-all: every rank's block of `head`
+    /// bytes (its head and its parts' lengths, the mean over the ranks) to
+    /// every rank, as an all-gather of them.
     fn all_to_all_heads(&self, ranks: usize, head: f64) -> f64 {
         self.all_gather(ranks, head * ranks as f64)
     }
@@ -180,9 +186,9 @@ pub fn replay(steps: &[Vec<SyncStep>], net: &Network) -> Result<f64, String> {
             let mut start = 0.0f64;
             let mut total = 0.0;
             let mut parts = 0.0f64;
-            let mut head = None;
-            let kind = steps[0][at[0]].head_bytes;
-            if (0..n).any(|r| steps[r][at[r]].head_bytes != kind) {
+            let mut heads = None;
+            let kind = steps[0][at[0]].head_bytes.is_some();
+            if (0..n).any(|r| steps[r][at[r]].head_bytes.is_some() != kind) {
                 return Err(format!(
                     "the ranks' steps do not form one run (a collective that is an \
                      all-to-all on some ranks and not on others, at steps {at:?})"
@@ -193,15 +199,15 @@ pub fn replay(steps: &[Vec<SyncStep>], net: &Network) -> Result<f64, String> {
                 start = start.max(t[r] + s.work_ns as f64 * 1e-9);
                 match s.head_bytes {
                     Some(h) => {
-                        head = Some(h as f64);
+                        *heads.get_or_insert(0.0) += h as f64;
                         parts = parts.max(net.all_to_all_parts(&s.sent, &s.received));
                     }
                     None => total += s.sent.iter().map(|&(_, b)| b as f64).sum::<f64>(),
                 }
             }
             let end = start
-                + match head {
-                    Some(h) => net.all_to_all_heads(n, h) + parts,
+                + match heads {
+                    Some(h) => net.all_to_all_heads(n, h / n as f64) + parts,
                     None => net.all_gather(n, total),
                 };
             for r in 0..n {
@@ -226,8 +232,9 @@ pub struct Interval {
     pub work: Vec<f64>,
     /// The bytes the ending all-gather moves in all.
     pub gathered: f64,
-    /// The ending collective is an all-to-all with heads of these bytes
-    /// (its parts are counted with the point-to-point traffic).
+    /// The ending collective is an all-to-all whose ranks' head blocks
+    /// hold these bytes on average (its parts are counted with the
+    /// point-to-point traffic).
     pub head: Option<f64>,
     /// The point-to-point messages and bytes of the busiest rank (sent and
     /// received).
@@ -252,9 +259,9 @@ pub fn intervals(steps: &[Vec<SyncStep>]) -> Result<Vec<Interval>, String> {
         c
     ];
     let mut traffic = vec![vec![(0.0f64, 0.0f64); n]; c];
-    // Per collective: whether it is an all-to-all (its head's bytes), as the
-    // first rank saw it.
-    let mut kinds: Vec<Option<Option<u64>>> = vec![None; c];
+    // Per collective: whether it is an all-to-all, as the first rank saw
+    // it.
+    let mut kinds: Vec<Option<bool>> = vec![None; c];
     for (r, rank) in steps.iter().enumerate() {
         let mut k = 0;
         for s in rank {
@@ -270,13 +277,14 @@ pub fn intervals(steps: &[Vec<SyncStep>]) -> Result<Vec<Interval>, String> {
                 }
             }
             if s.collective {
-                if kinds[k].get_or_insert(s.head_bytes) != &s.head_bytes {
+                let kind = s.head_bytes.is_some();
+                if *kinds[k].get_or_insert(kind) != kind {
                     return Err(format!(
                         "collective {k} is an all-to-all on some ranks and not on others"
                     ));
                 }
                 match s.head_bytes {
-                    Some(h) => out[k].head = Some(h as f64),
+                    Some(h) => *out[k].head.get_or_insert(0.0) += h as f64 / n as f64,
                     None => out[k].gathered += s.sent.iter().map(|&(_, b)| b as f64).sum::<f64>(),
                 }
                 k += 1;
@@ -422,11 +430,11 @@ mod tests {
         latency: 1e-6,
         overhead: 0.5e-6,
         seconds_per_byte: 1e-9,
-        collectives: Collectives::Tree,
+        collectives: Collectives::Dissemination,
     };
 
     #[test]
-    fn linear_collectives_pay_an_overhead_per_peer_and_tree_ones_a_round_per_doubling() {
+    fn linear_collectives_pay_an_overhead_per_peer_and_bruck_ones_a_round_per_doubling() {
         let linear = Network {
             collectives: Collectives::Linear,
             ..NET
@@ -482,31 +490,33 @@ mod tests {
     #[test]
     fn an_all_to_all_waits_for_the_last_rank_then_moves_heads_and_parts() {
         // Rank 0 works 20 µs and sends rank 1 500 bytes; rank 1 works 30 µs
-        // and sends nothing; heads of 16 bytes.
-        let a2a = |work, sent: &[(u32, u64)], received: &[(u32, u64)]| SyncStep {
-            head_bytes: Some(16),
+        // and sends nothing; head blocks of 40 bytes (rank 0's names its
+        // part) and 24.
+        let a2a = |work, head, sent: &[(u32, u64)], received: &[(u32, u64)]| SyncStep {
+            head_bytes: Some(head),
             ..step(work, true, sent, received)
         };
         let steps = vec![
-            vec![a2a(20, &[(1, 500)], &[])],
-            vec![a2a(30, &[], &[(0, 500)])],
+            vec![a2a(20, 40, &[(1, 500)], &[])],
+            vec![a2a(30, 24, &[], &[(0, 500)])],
         ];
         let t = replay(&steps, &NET).unwrap();
-        // One round of heads (L + 2o, and 16 bytes from the peer), then a
-        // message of 500 bytes: its overhead on each side, L and its bytes.
-        let heads = (1e-6 + 1e-6) + 1e-9 * 16.0;
+        // One round of heads (L + 2o, and the peer's block: half of the
+        // 64 bytes on average), then a message of 500 bytes: its overhead
+        // on each side, L and its bytes.
+        let heads = (1e-6 + 1e-6) + 1e-9 * 32.0;
         let parts = 2.0 * 0.5e-6 + 1e-6 + 1e-9 * 500.0;
         let expected = 30e-6 + heads + parts;
         assert!((t - expected).abs() < 1e-12, "{t} vs {expected}");
-        // The interval holds the head, and the parts as the busiest
-        // rank's traffic.
+        // The interval holds the mean head block, and the parts as the
+        // busiest rank's traffic.
         let iv = intervals(&steps).unwrap();
-        assert_eq!(iv[0].head, Some(16.0));
+        assert_eq!(iv[0].head, Some(32.0));
         assert_eq!((iv[0].messages, iv[0].bytes), (1.0, 500.0));
         assert_eq!(iv[0].gathered, 0.0);
         // An all-to-all on one rank is an all-gather on the other: no run.
         let mixed = vec![
-            vec![a2a(20, &[(1, 500)], &[])],
+            vec![a2a(20, 40, &[(1, 500)], &[])],
             vec![step(30, true, &[(1, 0)], &[])],
         ];
         assert!(replay(&mixed, &NET).is_err());
