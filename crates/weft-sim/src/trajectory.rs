@@ -34,6 +34,8 @@
 //! does not hold (a narrow-phase or retirement task with a vertex of another
 //! rank's partition) first receives its polyline from the holder into a
 //! per-window cache ([`Trajectories::fetched`]), exactly, bit for bit.
+//! The staged columns hold only the vertices held here: a rank of `R`
+//! keeps about `1/R` of them.
 
 use glam::DVec3;
 use weft_geom::ccd::bounds::{TrajectoryBounds, FANOUT};
@@ -51,8 +53,8 @@ pub const BYTES_PER_BREAKPOINT: usize =
 /// module docs).
 pub const STAGED_TICKS: usize = 16;
 
-/// Bytes per vertex of the staged columns: a position and a mark per staged
-/// tick, and a count.
+/// Bytes per held vertex of the staged columns: a position and a mark per
+/// staged tick, and a count.
 pub const STAGED_BYTES_PER_VERTEX: usize = STAGED_TICKS * (std::mem::size_of::<DVec3>() + 1) + 1;
 
 /// Staged internal-tick breakpoints (see the module docs).
@@ -60,8 +62,9 @@ pub const STAGED_BYTES_PER_VERTEX: usize = STAGED_TICKS * (std::mem::size_of::<D
 struct Staged {
     /// The staged ticks' times (relative ticks), at most [`STAGED_TICKS`].
     times: Vec<f64>,
-    /// Per staged tick: every vertex's position, and whether it is a
-    /// breakpoint (the vertex moved and is held here).
+    /// Per staged tick: every held vertex's position (vertex `i` at
+    /// `Trajectories::column_of[i]`), and whether it is a breakpoint (the
+    /// vertex moved).
     points: Vec<Vec<DVec3>>,
     marked: Vec<Vec<bool>>,
     /// Per vertex: its staged breakpoints already stored (a vertex stores
@@ -86,6 +89,10 @@ pub struct Trajectories {
     /// per vertex: the rank that stores its breakpoints, and this rank.
     holder: Vec<u32>,
     me: u32,
+    /// per vertex and one more: how many vertices below it are held here,
+    /// which is a held vertex's place in the staged columns (a run of
+    /// vertices `a..b` has the columns' `column_of[a]..column_of[b]`).
+    column_of: Vec<u32>,
     /// polylines of vertices held elsewhere, received this window.
     cache: std::collections::HashMap<u32, (Vec<f64>, Vec<DVec3>, TrajectoryBounds)>,
     /// internal ticks whose breakpoints are not stored yet, and the times
@@ -140,9 +147,9 @@ fn store_breakpoint(store: Stored<'_>, rel: f64, p: DVec3) {
     }
 }
 
-/// Stores vertex `j`'s staged breakpoints from column `from` on, in time
-/// order (`times[k]` the staged ticks' times), into `store`; the columns
-/// whole or a run's part of them.
+/// Stores the staged breakpoints at place `j` of the columns (whole or a
+/// run's part of them) from column `from` on, in time order (`times[k]` the
+/// staged ticks' times), into `store`.
 #[inline]
 fn store_staged<P: AsRef<[DVec3]>, M: AsRef<[bool]>>(
     store: Stored<'_>,
@@ -178,6 +185,10 @@ pub struct TrajectoryRun<'a> {
     last: &'a mut [f64],
     count: &'a mut [u32],
     holder: &'a [u32],
+    /// The run's vertices' places in the staged columns, less the run's
+    /// first (the run's part of the columns starts there).
+    column_of: &'a [u32],
+    column_base: u32,
     /// The staged ticks to store first ([`TrajectoryRun::prepare`]; empty
     /// when the columns are not full), and their columns.
     flush_times: &'a [f64],
@@ -202,13 +213,14 @@ impl TrajectoryRun<'_> {
             for j in 0..self.holder.len() {
                 let from = std::mem::take(&mut self.stored[j]) as usize;
                 if self.holder[j] == self.me {
+                    let column = self.column(j);
                     let store = (&mut self.times[j], &mut self.points[j], &mut self.bounds[j]);
                     store_staged(
                         store,
                         self.flush_times,
                         &self.staged_points,
                         &self.staged_marked,
-                        j,
+                        column,
                         from,
                     );
                 }
@@ -228,13 +240,14 @@ impl TrajectoryRun<'_> {
         let from = std::mem::replace(&mut self.stored[j], now as u8) as usize;
         let held = self.holder[j] == self.me;
         if held && from < now {
+            let column = self.column(j);
             let store = (&mut self.times[j], &mut self.points[j], &mut self.bounds[j]);
             store_staged(
                 store,
                 self.staged_times,
                 &self.staged_points,
                 &self.staged_marked,
-                j,
+                column,
                 from,
             );
         }
@@ -258,10 +271,18 @@ impl TrajectoryRun<'_> {
         self.last[j] = self.rel;
         self.count[j] += 1;
         if self.holder[j] == self.me {
-            self.staged_points[k][j] = p;
-            self.staged_marked[k][j] = true;
+            let c = self.column(j);
+            self.staged_points[k][c] = p;
+            self.staged_marked[k][c] = true;
         }
         true
+    }
+
+    /// The place of the run's held vertex `j` in its part of the staged
+    /// columns.
+    #[inline]
+    fn column(&self, j: usize) -> usize {
+        (self.column_of[j] - self.column_base) as usize
     }
 }
 
@@ -285,6 +306,7 @@ impl Trajectories {
             count: vec![0; n],
             holder: vec![0; n],
             me: 0,
+            column_of: (0..=n as u32).collect(),
             cache: Default::default(),
             staged: Staged::default(),
             flushed_times: Vec::new(),
@@ -299,9 +321,22 @@ impl Trajectories {
     }
 
     /// Stores from now on only the breakpoints of the vertices `holder`
-    /// gives to rank `me` (one entry per vertex); frees the others'.
+    /// gives to rank `me` (one entry per vertex); frees the others', and
+    /// sizes the staged columns for the vertices held (what was staged is
+    /// stored first).
     pub fn hold_only(&mut self, holder: Vec<u32>, me: u32) {
         assert_eq!(holder.len(), self.len(), "one holder per vertex");
+        for i in 0..self.len() {
+            self.store_staged_of(i);
+        }
+        self.staged.times.clear();
+        self.staged.stored.iter_mut().for_each(|s| *s = 0);
+        let mut held = 0;
+        for (i, &h) in holder.iter().enumerate() {
+            self.column_of[i] = held;
+            held += u32::from(h == me);
+        }
+        self.column_of[holder.len()] = held;
         for (i, &h) in holder.iter().enumerate() {
             if h != me {
                 self.times[i] = Vec::new();
@@ -311,6 +346,9 @@ impl Trajectories {
         }
         self.holder = holder;
         self.me = me;
+        if !self.staged.points.is_empty() {
+            self.make_staged_columns();
+        }
     }
 
     /// The rank that stores each vertex's breakpoints.
@@ -405,7 +443,7 @@ impl Trajectories {
     /// for it); trajectories recorded only out of turn (the layer
     /// predictor's) never make them.
     pub fn make_staged_columns(&mut self) {
-        let n = self.len();
+        let n = self.column_of.last().map_or(0, |&c| c as usize);
         if self.staged.points.len() != STAGED_TICKS || self.staged.points[0].len() != n {
             self.staged.points = vec![vec![DVec3::ZERO; n]; STAGED_TICKS];
             self.staged.marked = vec![vec![false; n]; STAGED_TICKS];
@@ -446,12 +484,15 @@ impl Trajectories {
         });
         let staged_times: &[f64] = &staged.times;
         let rel = column.map_or(0.0, |k| staged_times[k]);
+        // The runs' parts of the staged columns: their held vertices'.
+        let column_of = &self.column_of;
+        let held_bounds: Vec<usize> = bounds.iter().map(|&b| column_of[b] as usize).collect();
         let mut columns: Vec<std::vec::IntoIter<(usize, &mut [DVec3])>> =
             (staged.points.iter_mut())
-                .map(|c| split_chunks(c, bounds).into_iter())
+                .map(|c| split_chunks(c, &held_bounds).into_iter())
                 .collect();
         let mut marks: Vec<std::vec::IntoIter<(usize, &mut [bool])>> = (staged.marked.iter_mut())
-            .map(|c| split_chunks(c, bounds).into_iter())
+            .map(|c| split_chunks(c, &held_bounds).into_iter())
             .collect();
         let stored = split_chunks(&mut staged.stored, bounds);
         let times = split_chunks(&mut self.times, bounds);
@@ -475,6 +516,8 @@ impl Trajectories {
                         last,
                         count,
                         holder: &holder[bounds[k]..bounds[k + 1]],
+                        column_of: &column_of[bounds[k]..bounds[k + 1]],
+                        column_base: column_of[bounds[k]],
                         flush_times,
                         staged_points: columns
                             .iter_mut()
@@ -527,7 +570,7 @@ impl Trajectories {
             &staged.times,
             &staged.points,
             &staged.marked,
-            i,
+            self.column_of[i] as usize,
             from,
         );
     }
@@ -715,6 +758,13 @@ mod tests {
             t.flush(&crate::executor::Serial, &bounds);
         }
         assert!(ranks.iter().all(|t| t.breakpoints() == all.breakpoints()));
+        // Each rank's staged columns hold its own vertices only.
+        for (r, t) in ranks.iter().enumerate() {
+            let held = holder.iter().filter(|&&h| h == r as u32).count();
+            assert_eq!(t.staged.points[0].len(), held, "rank {r}");
+            assert_eq!(t.staged.marked[0].len(), held, "rank {r}");
+        }
+        assert_eq!(all.staged.points[0].len(), n);
         // rank 1 sends rank 0 the polylines of the vertices it holds
         let theirs: Vec<usize> = (0..n).filter(|&i| holder[i] == 1).collect();
         let mut words = Vec::new();
@@ -769,6 +819,49 @@ mod tests {
         // a new window empties the cache
         ranks[0].begin(200, &x);
         assert!(!ranks[0].readable(1) && ranks[0].readable(0));
+    }
+
+    /// A new holder while ticks are staged (as a placement between windows
+    /// may come): what was staged is stored first, the columns shrink to
+    /// the vertices now held, and their polylines keep every bit.
+    #[test]
+    fn a_new_holder_keeps_the_staged_breakpoints_and_shrinks_the_columns() {
+        let n = 9;
+        let x: Vec<DVec3> = (0..n).map(|i| DVec3::new(i as f64, 0.0, 1.0)).collect();
+        let bounds = [0, 4, n];
+        let stage = |t: &mut Trajectories, ticks: std::ops::Range<u64>| {
+            let mut added = 0;
+            for tick in ticks {
+                for mut run in t.runs(&bounds, Some(10 + tick)) {
+                    run.prepare();
+                    for j in 0..run.holder.len() {
+                        let p = DVec3::new(j as f64, tick as f64, -2.0);
+                        added += usize::from(run.stage(j, p));
+                    }
+                }
+            }
+            t.add_recorded(added).unwrap();
+        };
+        let mut moved = Trajectories::new(n, usize::MAX);
+        let mut kept = Trajectories::new(n, usize::MAX);
+        for t in [&mut moved, &mut kept] {
+            t.begin(0, &x);
+            stage(t, 0..5);
+        }
+        // Vertices 2, 3 and 7 stay with rank 0; the rest go to rank 1.
+        let holder: Vec<u32> = (0..n).map(|i| u32::from(![2, 3, 7].contains(&i))).collect();
+        moved.hold_only(holder, 0);
+        assert_eq!(moved.staged.points[0].len(), 3);
+        for t in [&mut moved, &mut kept] {
+            stage(t, 5..STAGED_TICKS as u64 + 3);
+            t.flush(&crate::executor::Serial, &bounds);
+        }
+        for i in [2, 3, 7] {
+            let (a, b) = (moved.of(i), kept.of(i));
+            assert_eq!(a.times, b.times, "vertex {i}");
+            assert_eq!(a.points, b.points, "vertex {i}");
+            assert_eq!(a.times.len(), STAGED_TICKS + 4);
+        }
     }
 
     /// The block bounds cost at most a quarter of the breakpoints they

@@ -176,13 +176,14 @@ impl<E: Executor> Engine<E> {
     pub fn new(world: World, exec: E) -> Result<Self, SimError> {
         let n = world.num_vertices();
         let mut traj = Trajectories::new(n, world.limits.trajectory_budget_bytes);
-        traj.make_staged_columns();
         let share = (exec.ranks() > 1).then(|| RankShare::new(&world, exec.rank(), exec.ranks()));
         if let Some(share) = &share {
             // A vertex's breakpoints are stored by its owner only; others
             // fetch what their tasks read.
             traj.hold_only(share.owner.clone(), share.rank as u32);
         }
+        // (After `hold_only`: the columns hold the vertices held here.)
+        traj.make_staged_columns();
         reserve_trajectories(&mut traj, &world);
         let mut broad = BroadPhase::grouped(&world.partitioning.of_triangle);
         if exec.ranks() > 1 {
