@@ -91,8 +91,13 @@ pub struct BroadPhase {
     labels: Vec<u32>,
     /// the groups' trees, built on the first pass over a mesh.
     groups: Vec<Group>,
-    /// per vertex: the DOP of its breakpoints, and that DOP inflated.
+    /// per vertex: the DOP of its breakpoints, and that DOP inflated. Spread
+    /// over ranks, per slot of `dop_slot`: only the vertices a rank holds or
+    /// received.
     vertex_dops: Vec<[Dop26; 2]>,
+    /// Spread over ranks: per vertex, its place in `vertex_dops`
+    /// ([`NO_DOP`]: not here this pass). Empty on one memory.
+    dop_slot: Vec<u32>,
     tri_dops: Vec<Dop26>,
     /// chunk bounds of the current parallel step.
     bounds: Vec<usize>,
@@ -214,6 +219,7 @@ impl BroadPhase {
             labels: _,
             groups,
             vertex_dops,
+            dop_slot,
             tri_dops,
             bounds,
             tasks,
@@ -231,7 +237,8 @@ impl BroadPhase {
                 traj,
                 inflate,
             };
-            let found = spread_candidates(exec, groups, label_ranks, &input, vertex_dops, bounds)?;
+            let dops = (vertex_dops, dop_slot);
+            let found = spread_candidates(exec, groups, label_ranks, &input, dops, bounds)?;
             (*last_trees, *last_pairs, *last_group_pairs) =
                 (found.trees, found.pairs, found.group_pairs);
             return Ok(found.keys);
@@ -252,11 +259,15 @@ impl BroadPhase {
                 *d = raw_and_inflated(raw, inflate);
             }
         });
+        dop_slot.clear();
         let vd: &[[Dop26; 2]] = vertex_dops;
         let filter = Filter {
             triangles,
             inv_mass,
-            vertex_dops: vd,
+            vertex_dops: VertexDops {
+                dops: vd,
+                slot: &[],
+            },
             inflate,
             exact_unions: !vd.iter().any(|d| d[0].is_empty()),
         };
@@ -352,7 +363,7 @@ struct Input<'a> {
 
 impl<'a> Input<'a> {
     /// The filter over `vertex_dops`.
-    fn filter(&self, vertex_dops: &'a [[Dop26; 2]], exact_unions: bool) -> Filter<'a> {
+    fn filter(&self, vertex_dops: VertexDops<'a>, exact_unions: bool) -> Filter<'a> {
         Filter {
             triangles: self.triangles,
             inv_mass: self.inv_mass,
@@ -365,6 +376,29 @@ impl<'a> Input<'a> {
 
 /// A vertex DOP as it travels: the vertex and its raw DOP.
 type VertexDop = (u32, Dop26);
+
+/// A vertex without a DOP on this rank this pass (`BroadPhase::dop_slot`).
+const NO_DOP: u32 = u32::MAX;
+
+/// The vertex DOPs (raw and inflated) a filter reads: per vertex, or, with
+/// `slot` (spread over ranks), at each vertex's slot.
+#[derive(Clone, Copy)]
+struct VertexDops<'a> {
+    dops: &'a [[Dop26; 2]],
+    slot: &'a [u32],
+}
+
+impl<'a> VertexDops<'a> {
+    /// Vertex `v`'s DOPs. A vertex with no DOP here ([`NO_DOP`]) is a bug
+    /// (what no one sent must not be read): the index panics.
+    #[inline]
+    fn of(&self, v: u32) -> &'a [Dop26; 2] {
+        match self.slot {
+            [] => &self.dops[v as usize],
+            slot => &self.dops[slot[v as usize] as usize],
+        }
+    }
+}
 
 /// The broad phase spread over ranks ([`BroadPhase::spread`]).
 ///
@@ -395,7 +429,7 @@ fn spread_candidates<E: Executor>(
     groups: &mut [Group],
     label_ranks: &[u32],
     input: &Input<'_>,
-    vertex_dops: &mut Vec<[Dop26; 2]>,
+    (vertex_dops, dop_slot): (&mut Vec<[Dop26; 2]>, &mut Vec<u32>),
     bounds: &mut Vec<usize>,
 ) -> Result<Found, CommError> {
     let (me, ranks) = (exec.rank() as u32, exec.ranks());
@@ -410,25 +444,27 @@ fn spread_candidates<E: Executor>(
         })
         .collect();
     let (traj, triangles) = (input.traj, input.triangles);
-    // 1. The held vertices' DOPs, then those the own groups use.
+    // 1. The held vertices' DOPs, then those the own groups use. A rank
+    // keeps DOPs only for the vertices it holds or receives: the held ones
+    // first, in vertex order, then each received one at the next slot.
     let n = traj.len();
-    vertex_dops.resize(n, [Dop26::empty(); 2]);
-    runs(n, bounds);
+    let held: Vec<u32> = (0..n as u32).filter(|&i| traj.holds(i as usize)).collect();
+    dop_slot.clear();
+    dop_slot.resize(n, NO_DOP);
+    for (k, &v) in held.iter().enumerate() {
+        dop_slot[v as usize] = k as u32;
+    }
+    vertex_dops.clear();
+    vertex_dops.resize(held.len(), [Dop26::empty(); 2]);
+    runs(held.len(), bounds);
     let inflate = input.inflate;
     exec.for_each_chunk(vertex_dops, bounds, &|k, chunk: &mut [[Dop26; 2]]| {
-        for (j, d) in chunk.iter_mut().enumerate() {
-            let i = k * RUN + j;
-            if traj.holds(i) {
-                let raw = Dop26::from_points(traj.of(i).points.iter().copied());
-                *d = raw_and_inflated(raw, inflate);
-            } else if cfg!(debug_assertions) {
-                // What no one sends must not be read: an empty DOP here
-                // would change the leaves (the tests would see it).
-                *d = [Dop26::empty(); 2];
-            }
+        for (&v, d) in held[k * RUN..].iter().zip(chunk.iter_mut()) {
+            let raw = Dop26::from_points(traj.of(v as usize).points.iter().copied());
+            *d = raw_and_inflated(raw, inflate);
         }
     });
-    let held_empty = (0..n).any(|i| traj.holds(i) && vertex_dops[i][0].is_empty());
+    let held_empty = vertex_dops.iter().any(|d| d[0].is_empty());
     // The DOPs this rank holds of the vertices of a group's triangles, to `r`.
     let send_group = |sends: &mut [Vec<u32>], group: &Group, r: u32| {
         for &t in &group.members {
@@ -449,13 +485,17 @@ fn spread_candidates<E: Executor>(
         exec,
         vec![u64::from(held_empty)],
         sends,
-        vertex_dops,
+        (vertex_dops, dop_slot),
         inflate,
     )?;
     let exact_unions = !heads.iter().any(|h| h.first() != Some(&0));
     // 2. The own groups' trees.
     {
-        let filter = input.filter(vertex_dops, exact_unions);
+        let dops = VertexDops {
+            dops: vertex_dops,
+            slot: dop_slot,
+        };
+        let filter = input.filter(dops, exact_unions);
         let direct = |t: u32| filter.leaf(filter.triangles[t as usize]);
         bounds.clear();
         bounds.extend(0..=groups.len());
@@ -516,8 +556,12 @@ fn spread_candidates<E: Executor>(
             }
         }
     }
-    deliver_dops(exec, Vec::new(), sends, vertex_dops, inflate)?;
-    let filter = input.filter(vertex_dops, exact_unions);
+    deliver_dops(exec, Vec::new(), sends, (vertex_dops, dop_slot), inflate)?;
+    let dops = VertexDops {
+        dops: vertex_dops,
+        slot: dop_slot,
+    };
+    let filter = input.filter(dops, exact_unions);
     let direct = |t: u32| filter.leaf(filter.triangles[t as usize]);
     bounds.clear();
     bounds.extend(0..=groups.len());
@@ -553,12 +597,13 @@ fn spread_candidates<E: Executor>(
 /// **Collective** (an all-to-all): sends each rank `r` the raw DOPs of the
 /// vertices `sends[r]` (held here; deduplicated here), with `head` to every
 /// rank, and stores the DOPs received (raw and inflated by `inflate`) in
-/// `vertex_dops`. Returns every rank's head.
+/// `vertex_dops`, each at its vertex's slot (a new one at the end for a
+/// vertex first received). Returns every rank's head.
 fn deliver_dops<E: Executor>(
     exec: &E,
     head: Vec<u64>,
     sends: Vec<Vec<u32>>,
-    vertex_dops: &mut [[Dop26; 2]],
+    (vertex_dops, dop_slot): (&mut Vec<[Dop26; 2]>, &mut [u32]),
     inflate: f64,
 ) -> Result<Vec<Vec<u64>>, CommError> {
     let me = exec.rank();
@@ -566,7 +611,7 @@ fn deliver_dops<E: Executor>(
         .map(|(r, mut list)| {
             list.sort_unstable();
             list.dedup();
-            let dops = list.iter().map(|&v| (v, vertex_dops[v as usize][0]));
+            let dops = (list.iter()).map(|&v| (v, vertex_dops[dop_slot[v as usize] as usize][0]));
             (r != me && !list.is_empty()).then(|| dops.collect())
         })
         .collect();
@@ -576,12 +621,16 @@ fn deliver_dops<E: Executor>(
             continue;
         }
         for (v, raw) in part.into_iter().flatten() {
-            let d = vertex_dops.get_mut(v as usize).ok_or_else(|| {
+            let slot = dop_slot.get_mut(v as usize).ok_or_else(|| {
                 CommError(format!(
                     "rank {me}: rank {r} sent the DOP of vertex {v}, past the end"
                 ))
             })?;
-            *d = raw_and_inflated(raw, inflate);
+            if *slot == NO_DOP {
+                *slot = vertex_dops.len() as u32;
+                vertex_dops.push([Dop26::empty(); 2]);
+            }
+            vertex_dops[*slot as usize] = raw_and_inflated(raw, inflate);
         }
     }
     Ok(heads)
@@ -677,7 +726,7 @@ struct Filter<'a> {
     triangles: &'a [[u32; 3]],
     inv_mass: &'a [f64],
     /// per vertex: raw and inflated DOP.
-    vertex_dops: &'a [[Dop26; 2]],
+    vertex_dops: VertexDops<'a>,
     inflate: f64,
     /// every vertex DOP is non-empty: unions of inflated DOPs are the
     /// inflated unions (module documentation).
@@ -689,9 +738,9 @@ impl Filter<'_> {
     #[inline]
     fn leaf(&self, t: [u32; 3]) -> Dop26 {
         let vd = self.vertex_dops;
-        let mut d = vd[t[0] as usize][0];
-        d.merge(&vd[t[1] as usize][0]);
-        d.merge(&vd[t[2] as usize][0]);
+        let mut d = vd.of(t[0])[0];
+        d.merge(&vd.of(t[1])[0]);
+        d.merge(&vd.of(t[2])[0]);
         d.inflate(self.inflate);
         d
     }
@@ -721,7 +770,7 @@ impl Filter<'_> {
             stencils_of_pair(ta, tb, self.inv_mass, out);
             let mut k = start;
             for i in start..out.len() {
-                if primitives_overlap_by(|v| &vd[v as usize][0], &out[i], self.inflate) {
+                if primitives_overlap_by(|v| &vd.of(v)[0], &out[i], self.inflate) {
                     out[k] = out[i];
                     k += 1;
                 }
@@ -733,7 +782,7 @@ impl Filter<'_> {
         // all are pure and conjunctive, so the order changes nothing.
         for (tv, face, fd) in [(ta, tb, leaves[1]), (tb, ta, leaves[0])] {
             for &p in &tv {
-                if !face.contains(&p) && overlap(&vd[p as usize][1], fd) {
+                if !face.contains(&p) && overlap(&vd.of(p)[1], fd) {
                     let k = StencilKey::vertex_face(p, face);
                     if keep(&k) {
                         out.push(k);
@@ -748,8 +797,8 @@ impl Filter<'_> {
                 if !eb.contains(&ea[0])
                     && !eb.contains(&ea[1])
                     && unions_overlap(
-                        [&vd[ea[0] as usize][1], &vd[ea[1] as usize][1]],
-                        [&vd[eb[0] as usize][1], &vd[eb[1] as usize][1]],
+                        [&vd.of(ea[0])[1], &vd.of(ea[1])[1]],
+                        [&vd.of(eb[0])[1], &vd.of(eb[1])[1]],
                     )
                 {
                     let k = StencilKey::edge_edge(ea, eb);
