@@ -34,8 +34,8 @@
 //! does not hold (a narrow-phase or retirement task with a vertex of another
 //! rank's partition) first receives its polyline from the holder into a
 //! per-window cache ([`Trajectories::fetched`]), exactly, bit for bit.
-//! The staged columns hold only the vertices held here: a rank of `R`
-//! keeps about `1/R` of them.
+//! The breakpoint storage and the staged columns hold only the vertices
+//! held here: a rank of `R` keeps about `1/R` of them.
 
 use glam::DVec3;
 use weft_geom::ccd::bounds::{TrajectoryBounds, FANOUT};
@@ -76,11 +76,13 @@ struct Staged {
 #[derive(Clone, Debug, Default)]
 pub struct Trajectories {
     start: Tick,
+    /// per held vertex (vertex `i` at `column_of[i]`): its breakpoints'
+    /// times and points,
     times: Vec<Vec<f64>>,
     points: Vec<Vec<DVec3>>,
-    /// per vertex: block bounds over its breakpoints, built as they are
-    /// recorded (the narrow phase's and the commit's certificates bound
-    /// long stretches with them).
+    /// and block bounds over them, built as they are recorded (the narrow
+    /// phase's and the commit's certificates bound long stretches with
+    /// them).
     bounds: Vec<TrajectoryBounds>,
     /// per vertex: the time of its last breakpoint (relative ticks) and how
     /// many it has — kept for every vertex, held here or not.
@@ -90,8 +92,9 @@ pub struct Trajectories {
     holder: Vec<u32>,
     me: u32,
     /// per vertex and one more: how many vertices below it are held here,
-    /// which is a held vertex's place in the staged columns (a run of
-    /// vertices `a..b` has the columns' `column_of[a]..column_of[b]`).
+    /// which is a held vertex's place in the staged columns and the held
+    /// storage (a run of vertices `a..b` has their places
+    /// `column_of[a]..column_of[b]`).
     column_of: Vec<u32>,
     /// polylines of vertices held elsewhere, received this window.
     cache: std::collections::HashMap<u32, (Vec<f64>, Vec<DVec3>, TrajectoryBounds)>,
@@ -213,14 +216,14 @@ impl TrajectoryRun<'_> {
             for j in 0..self.holder.len() {
                 let from = std::mem::take(&mut self.stored[j]) as usize;
                 if self.holder[j] == self.me {
-                    let column = self.column(j);
-                    let store = (&mut self.times[j], &mut self.points[j], &mut self.bounds[j]);
+                    let c = self.column(j);
+                    let store = (&mut self.times[c], &mut self.points[c], &mut self.bounds[c]);
                     store_staged(
                         store,
                         self.flush_times,
                         &self.staged_points,
                         &self.staged_marked,
-                        column,
+                        c,
                         from,
                     );
                 }
@@ -239,20 +242,20 @@ impl TrajectoryRun<'_> {
         let now = self.staged_times.len();
         let from = std::mem::replace(&mut self.stored[j], now as u8) as usize;
         let held = self.holder[j] == self.me;
+        let c = if held { self.column(j) } else { 0 };
         if held && from < now {
-            let column = self.column(j);
-            let store = (&mut self.times[j], &mut self.points[j], &mut self.bounds[j]);
+            let store = (&mut self.times[c], &mut self.points[c], &mut self.bounds[c]);
             store_staged(
                 store,
                 self.staged_times,
                 &self.staged_points,
                 &self.staged_marked,
-                column,
+                c,
                 from,
             );
         }
         let rel = (t - self.start) as f64;
-        let store = held.then(|| (&mut self.times[j], &mut self.points[j], &mut self.bounds[j]));
+        let store = held.then(|| (&mut self.times[c], &mut self.points[c], &mut self.bounds[c]));
         push_breakpoint(&mut self.last[j], &mut self.count[j], store, rel, p)
     }
 
@@ -264,8 +267,10 @@ impl TrajectoryRun<'_> {
         if self.last[j] == self.rel {
             // The same instant again (an internal tick at the window
             // start): its newest position replaces the stored one.
-            let store = (self.holder[j] == self.me)
-                .then(|| (&mut self.times[j], &mut self.points[j], &mut self.bounds[j]));
+            let held = self.holder[j] == self.me;
+            let c = if held { self.column(j) } else { 0 };
+            let store =
+                held.then(|| (&mut self.times[c], &mut self.points[c], &mut self.bounds[c]));
             return push_breakpoint(&mut self.last[j], &mut self.count[j], store, self.rel, p);
         }
         self.last[j] = self.rel;
@@ -279,7 +284,7 @@ impl TrajectoryRun<'_> {
     }
 
     /// The place of the run's held vertex `j` in its part of the staged
-    /// columns.
+    /// columns and of the held storage.
     #[inline]
     fn column(&self, j: usize) -> usize {
         (self.column_of[j] - self.column_base) as usize
@@ -331,19 +336,31 @@ impl Trajectories {
         }
         self.staged.times.clear();
         self.staged.stored.iter_mut().for_each(|s| *s = 0);
+        // The storage of the vertices held from now on: kept where they
+        // were held already, empty where not.
+        let kept = holder.iter().filter(|&&h| h == me).count();
+        let mut times = Vec::with_capacity(kept);
+        let mut points = Vec::with_capacity(kept);
+        let mut bounds = Vec::with_capacity(kept);
         let mut held = 0;
         for (i, &h) in holder.iter().enumerate() {
+            if h == me {
+                if self.holder[i] == self.me {
+                    let c = self.column_of[i] as usize;
+                    times.push(std::mem::take(&mut self.times[c]));
+                    points.push(std::mem::take(&mut self.points[c]));
+                    bounds.push(std::mem::take(&mut self.bounds[c]));
+                } else {
+                    times.push(Vec::new());
+                    points.push(Vec::new());
+                    bounds.push(TrajectoryBounds::default());
+                }
+            }
             self.column_of[i] = held;
             held += u32::from(h == me);
         }
         self.column_of[holder.len()] = held;
-        for (i, &h) in holder.iter().enumerate() {
-            if h != me {
-                self.times[i] = Vec::new();
-                self.points[i] = Vec::new();
-                self.bounds[i] = TrajectoryBounds::default();
-            }
-        }
+        (self.times, self.points, self.bounds) = (times, points, bounds);
         self.holder = holder;
         self.me = me;
         if !self.staged.points.is_empty() {
@@ -375,11 +392,12 @@ impl Trajectories {
             self.last[i] = 0.0;
             self.count[i] = 1;
             if self.holder[i] == self.me {
-                self.times[i].clear();
-                self.points[i].clear();
-                self.bounds[i].clear();
-                self.times[i].push(0.0);
-                self.points[i].push(p);
+                let c = self.column_of[i] as usize;
+                self.times[c].clear();
+                self.points[c].clear();
+                self.bounds[c].clear();
+                self.times[c].push(0.0);
+                self.points[c].push(p);
             }
         }
         self.total = x.len();
@@ -394,17 +412,18 @@ impl Trajectories {
     /// trajectory budget (the budget error then comes from the breakpoints
     /// themselves).
     pub fn reserve(&mut self, per_vertex: usize, moves: impl Fn(usize) -> bool) {
-        let reserved = (0..self.times.len())
+        let reserved = (0..self.len())
             .filter(|&i| self.holder[i] == self.me && moves(i))
             .count();
         if reserved.saturating_mul(per_vertex) > self.budget / BYTES_PER_BREAKPOINT {
             return;
         }
-        for i in 0..self.times.len() {
-            if self.holder[i] == self.me && moves(i) && self.times[i].capacity() < per_vertex {
-                let more = per_vertex.saturating_sub(self.times[i].len());
-                self.times[i].reserve_exact(more);
-                self.points[i].reserve_exact(more);
+        for i in 0..self.len() {
+            let c = self.column_of[i] as usize;
+            if self.holder[i] == self.me && moves(i) && self.times[c].capacity() < per_vertex {
+                let more = per_vertex.saturating_sub(self.times[c].len());
+                self.times[c].reserve_exact(more);
+                self.points[c].reserve_exact(more);
             }
         }
     }
@@ -414,8 +433,9 @@ impl Trajectories {
     pub fn record(&mut self, i: usize, t: Tick, p: DVec3) -> Result<(), BudgetExceeded> {
         self.store_staged_of(i);
         let rel = (t - self.start) as f64;
+        let c = self.column_of[i] as usize;
         let store = (self.holder[i] == self.me)
-            .then(|| (&mut self.times[i], &mut self.points[i], &mut self.bounds[i]));
+            .then(|| (&mut self.times[c], &mut self.points[c], &mut self.bounds[c]));
         if push_breakpoint(&mut self.last[i], &mut self.count[i], store, rel, p) {
             self.add_recorded(1)?;
         }
@@ -495,9 +515,9 @@ impl Trajectories {
             .map(|c| split_chunks(c, &held_bounds).into_iter())
             .collect();
         let stored = split_chunks(&mut staged.stored, bounds);
-        let times = split_chunks(&mut self.times, bounds);
-        let points = split_chunks(&mut self.points, bounds);
-        let boxes = split_chunks(&mut self.bounds, bounds);
+        let times = split_chunks(&mut self.times, &held_bounds);
+        let points = split_chunks(&mut self.points, &held_bounds);
+        let boxes = split_chunks(&mut self.bounds, &held_bounds);
         let last = split_chunks(&mut self.last, bounds);
         let count = split_chunks(&mut self.count, bounds);
         let holder = &self.holder;
@@ -564,13 +584,14 @@ impl Trajectories {
         if self.holder[i] != self.me {
             return;
         }
-        let store = (&mut self.times[i], &mut self.points[i], &mut self.bounds[i]);
+        let c = self.column_of[i] as usize;
+        let store = (&mut self.times[c], &mut self.points[c], &mut self.bounds[c]);
         store_staged(
             store,
             &staged.times,
             &staged.points,
             &staged.marked,
-            self.column_of[i] as usize,
+            c,
             from,
         );
     }
@@ -607,10 +628,11 @@ impl Trajectories {
     pub fn of(&self, i: usize) -> Trajectory<'_> {
         debug_assert!(self.staged.times.is_empty(), "read before a flush");
         if self.holder[i] == self.me {
+            let c = self.column_of[i] as usize;
             return Trajectory {
-                times: &self.times[i],
-                points: &self.points[i],
-                bounds: Some(&self.bounds[i]),
+                times: &self.times[c],
+                points: &self.points[c],
+                bounds: Some(&self.bounds[c]),
             };
         }
         let (times, points, bounds) = self.cache.get(&(i as u32)).unwrap_or_else(|| {
@@ -696,12 +718,12 @@ impl Trajectories {
 
     /// Number of vertices.
     pub fn len(&self) -> usize {
-        self.times.len()
+        self.count.len()
     }
 
     /// True when there are no vertices.
     pub fn is_empty(&self) -> bool {
-        self.times.is_empty()
+        self.count.is_empty()
     }
 }
 
@@ -901,7 +923,9 @@ mod tests {
         t.hold_only(vec![0, 0, 0, 1], 0);
         t.begin(0, &x);
         t.reserve(100, |i| i != 1);
-        for (i, room) in [(0, true), (1, false), (2, true), (3, false)] {
+        // Vertex 3, held elsewhere, has no storage here at all.
+        assert_eq!((t.times.len(), t.points.len(), t.bounds.len()), (3, 3, 3));
+        for (i, room) in [(0, true), (1, false), (2, true)] {
             let (times, points) = (t.times[i].capacity(), t.points[i].capacity());
             assert_eq!((times >= 100, points >= 100), (room, room), "vertex {i}");
         }
