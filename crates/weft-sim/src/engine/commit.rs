@@ -32,11 +32,11 @@ impl<E: Executor> Engine<E> {
             .collect();
         // Each stencil's new state depends on its own certificates only, so
         // the stencils are decided on the executor and applied in key order.
-        // Tasks are runs of entries; each stencil is decided on the rank
-        // that holds its first vertex's breakpoints (on one memory every
-        // vertex is held by rank 0). Only the stencils among the candidates
-        // are certified again, so only their polylines are read — over
-        // ranks, fetched when held elsewhere.
+        // Tasks are runs of entries; each stencil is decided on a rank that
+        // holds one of its vertices' breakpoints (`deciding_ranks`; on one
+        // memory every vertex is held by rank 0). Only the stencils among
+        // the candidates are certified again, so only their polylines are
+        // read — over ranks, fetched when held elsewhere.
         let ranks = self.exec.ranks();
         let holders = self.traj.holders();
         // Both in key order: one merge walk.
@@ -48,10 +48,8 @@ impl<E: Executor> Engine<E> {
                 rest.peek() == Some(&key)
             })
             .collect();
-        let mut by_rank: Vec<Vec<usize>> = vec![Vec::new(); ranks];
-        for (n, (key, _)) in entries.iter().enumerate() {
-            by_rank[holders[key.v[0] as usize] as usize].push(n);
-        }
+        let keys: Vec<&StencilKey> = entries.iter().map(|(k, _)| k).collect();
+        let by_rank = deciding_ranks(&keys, &near, holders, ranks);
         let mut runs: Vec<&[usize]> = Vec::new();
         let mut owner: Vec<u32> = Vec::new();
         for (r, mine) in by_rank.iter().enumerate() {
@@ -132,5 +130,89 @@ impl<E: Executor> Engine<E> {
         }
         layers.retain(|_, s| s.depth > 0);
         Ok((retired, unreached))
+    }
+}
+
+/// The entries (stencil keys, in key order) each rank decides: a stencil
+/// goes to a rank holding one of its vertices' breakpoints, the only one
+/// where a single rank holds them all; else the one with the fewest
+/// stencils to certify (`near`) so far, counting first every rank's own
+/// (ties: the lower rank). A contact region on a border is so shared
+/// between the ranks beside it, with no more polylines to fetch than
+/// deciding it on its first vertex's rank. The same on every rank: it
+/// reads only the keys, `near` and the holders.
+fn deciding_ranks(
+    keys: &[&StencilKey],
+    near: &[bool],
+    holders: &[u32],
+    ranks: usize,
+) -> Vec<Vec<usize>> {
+    let holder = |v: &u32| holders[*v as usize] as usize;
+    let single = |key: &StencilKey| key.v.iter().all(|v| holder(v) == holder(&key.v[0]));
+    let mut certify = vec![0usize; ranks];
+    for (key, _) in keys.iter().zip(near).filter(|(k, &n)| n && single(k)) {
+        certify[holder(&key.v[0])] += 1;
+    }
+    let mut by_rank: Vec<Vec<usize>> = vec![Vec::new(); ranks];
+    for (n, key) in keys.iter().enumerate() {
+        let r = if single(key) {
+            holder(&key.v[0])
+        } else {
+            let r = (key.v.iter().map(holder))
+                .min_by_key(|&r| (certify[r], r))
+                .expect("a stencil has vertices");
+            certify[r] += usize::from(near[n]);
+            r
+        };
+        by_rank[r].push(n);
+    }
+    by_rank
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn border_stencils_go_to_the_rank_with_less_to_certify() {
+        // Vertices 0..8 on rank 0, 8..16 on rank 1, 16..24 on rank 2.
+        let holders: Vec<u32> = (0..24).map(|v| v / 8).collect();
+        // Rank 0 certifies 6 stencils of its own, rank 1 none, rank 2 one
+        // (and one far away, not to certify); 8 stencils straddle ranks 0
+        // and 1, of which 6 are to certify.
+        let mut keys = Vec::new();
+        let mut near = Vec::new();
+        for k in 0..6u32 {
+            keys.push(StencilKey::vertex_face(k % 4, [4, 5, 6]));
+            near.push(true);
+        }
+        keys.push(StencilKey::vertex_face(16, [17, 18, 19]));
+        near.push(true);
+        keys.push(StencilKey::vertex_face(20, [21, 22, 23]));
+        near.push(false);
+        for k in 0..8u32 {
+            keys.push(StencilKey::vertex_face(k % 4, [8 + k % 3, 12, 13]));
+            near.push(k < 6);
+        }
+        let refs: Vec<&StencilKey> = keys.iter().collect();
+        let by_rank = deciding_ranks(&refs, &near, &holders, 3);
+        // Every stencil once, on a rank holding one of its vertices.
+        let mut all: Vec<usize> = by_rank.concat();
+        all.sort_unstable();
+        assert_eq!(all, (0..keys.len()).collect::<Vec<_>>());
+        for (r, mine) in by_rank.iter().enumerate() {
+            for &n in mine {
+                assert!(keys[n].v.iter().any(|&v| holders[v as usize] as usize == r));
+            }
+        }
+        // The border's six to certify all go to rank 1 (6 against 0); its
+        // two others then find a tie and go to the lower rank.
+        let certified = |r: usize| by_rank[r].iter().filter(|&&n| near[n]).count();
+        assert_eq!((certified(0), certified(1), certified(2)), (6, 6, 1));
+        assert_eq!(
+            by_rank.iter().map(Vec::len).collect::<Vec<_>>(),
+            vec![8, 6, 2]
+        );
+        // Decided on the first vertex's rank, rank 0 would certify 12.
     }
 }
