@@ -138,9 +138,9 @@ impl<E: Executor> Engine<E> {
 /// where a single rank holds them all; else the one with the fewest
 /// stencils to certify (`near`) so far, counting first every rank's own
 /// (ties: the lower rank). A contact region on a border is so shared
-/// between the ranks beside it, with no more polylines to fetch than
-/// deciding it on its first vertex's rank. The same on every rank: it
-/// reads only the keys, `near` and the holders.
+/// between the ranks beside it (the deciding rank fetches the polylines of
+/// the vertices it does not hold, as on its first vertex's rank). The same
+/// on every rank: it reads only the keys, `near` and the holders.
 fn deciding_ranks(
     keys: &[&StencilKey],
     near: &[bool],
