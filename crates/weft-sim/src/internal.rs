@@ -35,6 +35,23 @@ struct Piece {
     hinges: Range<usize>,
 }
 
+impl Piece {
+    /// A whole partition as a piece.
+    fn of(part: &Partition) -> Self {
+        Piece {
+            stretch: part.stretch.clone(),
+            hinges: part.hinges.clone(),
+        }
+    }
+
+    /// How many of its elements the per-element flags `stretch` and
+    /// `hinges` (by storage index) mark.
+    fn count_in(&self, stretch: &[bool], hinges: &[bool]) -> usize {
+        let s = stretch[self.stretch.clone()].iter().filter(|&&b| b).count();
+        s + hinges[self.hinges.clone()].iter().filter(|&&b| b).count()
+    }
+}
+
 /// A subset of the internal elements: per stretch element and per hinge
 /// (by storage index) whether it is in, and per partition (and piece) how
 /// many of its elements are.
@@ -359,16 +376,10 @@ impl InternalForces {
             .map(|e| e.verts.iter().all(|&i| pick(i)))
             .collect();
         let in_partition = (self.partitions.iter())
-            .map(|p| {
-                let s = stretch[p.stretch.clone()].iter().filter(|&&b| b).count();
-                s + hinges[p.hinges.clone()].iter().filter(|&&b| b).count()
-            })
+            .map(|p| Piece::of(p).count_in(&stretch, &hinges))
             .collect();
         let in_piece = (self.pieces.iter())
-            .map(|p| {
-                let s = stretch[p.stretch.clone()].iter().filter(|&&b| b).count();
-                s + hinges[p.hinges.clone()].iter().filter(|&&b| b).count()
-            })
+            .map(|p| p.count_in(&stretch, &hinges))
             .collect();
         ElementMask {
             stretch,
@@ -407,12 +418,7 @@ impl InternalForces {
         chunk: &mut [DVec3],
         mask: Option<(&ElementMask, bool)>,
     ) {
-        let part = &self.partitions[p];
-        let piece = Piece {
-            stretch: part.stretch.clone(),
-            hinges: part.hinges.clone(),
-        };
-        self.evaluate_range(&piece, x, v, chunk, mask);
+        self.evaluate_range(&Piece::of(&self.partitions[p]), x, v, chunk, mask);
     }
 
     /// Evaluates the elements of `piece` (all, or those whose entry in

@@ -1394,10 +1394,9 @@ fn table(r: &BenchReport) -> String {
             p.network.latency * 1e6,
             p.network.overhead * 1e6,
             1e-9 / p.network.seconds_per_byte,
-            match p.network.collectives {
-                project::Collectives::Linear => "linear",
-                project::Collectives::Dissemination => "dissemination",
-            }
+            clap::ValueEnum::to_possible_value(&p.network.collectives)
+                .expect("no variant is skipped")
+                .get_name()
         );
         for (ranks, replay, critical) in &p.replayed {
             let _ = writeln!(
