@@ -90,3 +90,42 @@ fn masked_halves_give_the_whole_evaluation_bit_for_bit() {
         split_matches_whole(&Threads::new(2).unwrap(), &w, &mut rng);
     }
 }
+
+/// The fold reads a vertex's slots in global key order wherever they lie;
+/// the layout puts them side by side. Every slot a vertex folds belongs to
+/// an element corner at that vertex, and inside each piece of a partition
+/// (at most `ELEMENTS_PER_PIECE` elements) the slots run by vertex: a
+/// partition's slot vertices descend at most once per piece boundary.
+#[test]
+fn slots_are_laid_out_by_vertex_within_pieces() {
+    use weft_sim::internal::ELEMENTS_PER_PIECE;
+    for partitions in [1, 7, 32] {
+        let w = crumple(partitions);
+        let f = &w.internal;
+        let mut vertex_of_slot = vec![u32::MAX; f.num_slots()];
+        for (p, part) in f.partitions.iter().enumerate() {
+            let vertices = f.slot_vertices(p);
+            assert_eq!(vertices.len(), part.slots.len());
+            let elements = part.stretch.len() + part.hinges.len();
+            let pieces = elements.div_ceil(ELEMENTS_PER_PIECE).max(1);
+            let descents = vertices.windows(2).filter(|v| v[1] < v[0]).count();
+            assert!(
+                descents < pieces,
+                "partition {p}: {descents} descents, {pieces} pieces"
+            );
+            vertex_of_slot[part.slots.clone()].copy_from_slice(&vertices);
+        }
+        let mut folded = vec![false; f.num_slots()];
+        for i in 0..w.num_vertices() {
+            for &s in f.incidence(i) {
+                assert_eq!(vertex_of_slot[s as usize], i as u32, "slot {s}");
+                assert!(!folded[s as usize], "slot {s} folded twice");
+                folded[s as usize] = true;
+            }
+        }
+        // Every slot of a dynamic vertex's corner is folded.
+        for (s, &i) in vertex_of_slot.iter().enumerate() {
+            assert_eq!(folded[s], w.inv_mass[i as usize] > 0.0, "slot {s}");
+        }
+    }
+}

@@ -5,7 +5,11 @@
 //! Storage is partition-major (each partition's elements, and their output
 //! slots, are contiguous) while the per-vertex fold visits contributions in
 //! **global key order** — stretch elements by triangle input id, then hinges by
-//! edge — so the sum's bits do not depend on the partitioning.
+//! edge — so the sum's bits do not depend on the partitioning. Inside each
+//! piece of a partition (at most [`ELEMENTS_PER_PIECE`] elements) the slots
+//! are laid out by vertex, so a vertex's fold reads short runs of
+//! neighbouring slots rather than one slot per element scattered over the
+//! partition.
 
 use std::ops::Range;
 
@@ -26,6 +30,9 @@ pub struct Partition {
 
 /// At most this many elements per piece ([`InternalForces::evaluate_in_pieces`]).
 pub const ELEMENTS_PER_PIECE: usize = 256;
+
+// A corner's slot is kept as a `u16` offset in its piece (4 slots a hinge).
+const _: () = assert!(4 * ELEMENTS_PER_PIECE <= 1 << 16);
 
 /// A run of one partition's elements, in storage order (its stretch
 /// elements, then its hinges), and so of its output slots.
@@ -95,6 +102,13 @@ pub struct InternalForces {
     /// Per-vertex CSR of output slots in global key order.
     incidence_offsets: Vec<u32>,
     incidence: Vec<u32>,
+    /// The output slot of each element corner, from its piece's first
+    /// slot: 3 per stretch element, then 4 per hinge, in storage order.
+    /// Within a piece the slots are laid out by vertex (then in the fold's
+    /// order), not by element.
+    corner_slot: Vec<u16>,
+    /// The pieces of each partition (indices into `pieces`).
+    pieces_of: Vec<Range<usize>>,
     damped: bool,
 }
 
@@ -187,25 +201,39 @@ impl InternalForces {
             (s0, h0) = (s1, h1);
         }
 
+        // The elements cut into pieces (the tasks of an evaluation on one
+        // memory), and each piece's slots laid out vertex by vertex: the
+        // fold of a vertex then reads one short run of slots per piece its
+        // elements lie in, and consecutive vertices read neighbouring runs
+        // (it was bound by the latency of scattered loads). Each element
+        // corner writes its own slot (`corner_slot`); the fold's order is
+        // the incidence's, global key order, whatever the layout.
+        let (pieces, piece_bounds, pieces_of) = cut_into_pieces(&parts);
+        let ns = stretch.len();
+        let mut corner_slot = vec![0u16; 3 * ns + 4 * hinges.len()];
         // Incidence in global key order: (vertex, class, key, corner) -> slot.
         let mut inc: Vec<(u32, u32, u32, u32, u32)> = Vec::new();
-        for part in &parts {
-            let mut slot = part.slots.start as u32;
-            for s in part.stretch.clone() {
+        // (vertex, class, key, corner, corner index in storage order) of
+        // one piece.
+        let mut corners: Vec<(u32, u32, u32, u32, usize)> = Vec::new();
+        for (piece, &start) in pieces.iter().zip(&piece_bounds) {
+            corners.clear();
+            for s in piece.stretch.clone() {
                 for (j, &vtx) in stretch[s].verts.iter().enumerate() {
-                    if inv_mass[vtx as usize] > 0.0 {
-                        inc.push((vtx, 0, stretch_keys[s].1, j as u32, slot + j as u32));
-                    }
+                    corners.push((vtx, 0, stretch_keys[s].1, j as u32, 3 * s + j));
                 }
-                slot += 3;
             }
-            for h in part.hinges.clone() {
+            for h in piece.hinges.clone() {
                 for (j, &vtx) in hinges[h].verts.iter().enumerate() {
-                    if inv_mass[vtx as usize] > 0.0 {
-                        inc.push((vtx, 1, hinge_keys[h].1, j as u32, slot + j as u32));
-                    }
+                    corners.push((vtx, 1, hinge_keys[h].1, j as u32, 3 * ns + 4 * h + j));
                 }
-                slot += 4;
+            }
+            corners.sort_unstable();
+            for (k, &(vtx, class, key, j, c)) in corners.iter().enumerate() {
+                corner_slot[c] = k as u16;
+                if inv_mass[vtx as usize] > 0.0 {
+                    inc.push((vtx, class, key, j, (start + k) as u32));
+                }
             }
         }
         inc.sort_unstable();
@@ -226,7 +254,6 @@ impl InternalForces {
         let damped = materials_list
             .iter()
             .any(|m| m.stretch_damping > 0.0 || m.bend_damping > 0.0);
-        let (pieces, piece_bounds) = cut_into_pieces(&parts);
         let first_vertex = |p: &Piece| -> u32 {
             let stretch = stretch[p.stretch.clone()].iter().map(|e| &e.verts[..]);
             let hinges = hinges[p.hinges.clone()].iter().map(|e| &e.verts[..]);
@@ -253,6 +280,8 @@ impl InternalForces {
             hinge_by_key: by_key(&hinge_keys),
             incidence_offsets,
             incidence,
+            corner_slot,
+            pieces_of,
             damped,
         })
     }
@@ -276,7 +305,8 @@ impl InternalForces {
 
     /// Evaluates every element at positions `x` (and velocities `v` for
     /// damping, read at the start of the batch): writes `dV/dx - f_damping`
-    /// per element corner into `out` (partition-major slots).
+    /// per element corner into `out` (partition-major slots, each
+    /// partition's laid out by vertex piece by piece).
     /// `only`, when given, says which partitions to evaluate (the others'
     /// slots are left as they are): a rank's share over ranks.
     pub fn evaluate<E: Executor>(
@@ -418,11 +448,16 @@ impl InternalForces {
         chunk: &mut [DVec3],
         mask: Option<(&ElementMask, bool)>,
     ) {
-        self.evaluate_range(&Piece::of(&self.partitions[p]), x, v, chunk, mask);
+        let first = self.partitions[p].slots.start;
+        for k in self.pieces_of[p].clone() {
+            let slots = self.piece_bounds[k] - first..self.piece_bounds[k + 1] - first;
+            self.evaluate_range(&self.pieces[k], x, v, &mut chunk[slots], mask);
+        }
     }
 
     /// Evaluates the elements of `piece` (all, or those whose entry in
-    /// `mask` is `want`) into `chunk`, their output slots.
+    /// `mask` is `want`) into `chunk`, the piece's output slots, each
+    /// corner into its own slot.
     fn evaluate_range(
         &self,
         piece: &Piece,
@@ -431,10 +466,13 @@ impl InternalForces {
         chunk: &mut [DVec3],
         mask: Option<(&ElementMask, bool)>,
     ) {
-        let mut k = 0;
+        let mut write = |corners: &[u16], g: &[DVec3]| {
+            for (&slot, &g) in corners.iter().zip(g) {
+                chunk[usize::from(slot)] = g;
+            }
+        };
         for s in piece.stretch.clone() {
             if mask.is_some_and(|(m, want)| m.stretch[s] != want) {
-                k += 3;
                 continue;
             }
             let e = &self.stretch[s];
@@ -448,12 +486,11 @@ impl InternalForces {
                     g[j] -= f[j];
                 }
             }
-            chunk[k..k + 3].copy_from_slice(&g);
-            k += 3;
+            write(&self.corner_slot[3 * s..3 * s + 3], &g);
         }
+        let hinge_corners = &self.corner_slot[3 * self.stretch.len()..];
         for h in piece.hinges.clone() {
             if mask.is_some_and(|(m, want)| m.hinges[h] != want) {
-                k += 4;
                 continue;
             }
             let e = &self.hinges[h];
@@ -467,8 +504,7 @@ impl InternalForces {
                     g[j] -= f[j];
                 }
             }
-            chunk[k..k + 4].copy_from_slice(&g);
-            k += 4;
+            write(&hinge_corners[4 * h..4 * h + 4], &g);
         }
     }
 
@@ -481,16 +517,22 @@ impl InternalForces {
         &self.incidence[a..b]
     }
 
-    /// The vertices of each element of partition `p`, slot by slot (3 per
-    /// stretch element, then 4 per hinge), in the order of its output slots.
+    /// The vertex of each output slot of partition `p`, in slot order.
     pub fn slot_vertices(&self, p: usize) -> Vec<u32> {
-        let part = &self.partitions[p];
-        let mut out = Vec::with_capacity(part.slots.len());
-        for s in part.stretch.clone() {
-            out.extend_from_slice(&self.stretch[s].verts);
-        }
-        for h in part.hinges.clone() {
-            out.extend_from_slice(&self.hinges[h].verts);
+        let first = self.partitions[p].slots.start;
+        let mut out = vec![NONE; self.partitions[p].slots.len()];
+        let ns = self.stretch.len();
+        for k in self.pieces_of[p].clone() {
+            let piece = &self.pieces[k];
+            let at = self.piece_bounds[k] - first;
+            let corners = (piece.stretch.clone())
+                .map(|s| (&self.stretch[s].verts[..], 3 * s))
+                .chain((piece.hinges.clone()).map(|h| (&self.hinges[h].verts[..], 3 * ns + 4 * h)));
+            for (verts, c) in corners {
+                for (j, &vtx) in verts.iter().enumerate() {
+                    out[at + usize::from(self.corner_slot[c + j])] = vtx;
+                }
+            }
         }
         out
     }
@@ -635,14 +677,16 @@ fn wanted(all: usize, kept: usize, want: bool) -> usize {
 /// The partitions' elements cut into pieces of at most
 /// [`ELEMENTS_PER_PIECE`] (each partition into about equal pieces, in
 /// storage order), with the pieces' slot bounds (3 slots per stretch
-/// element, 4 per hinge, as the partitions').
-fn cut_into_pieces(parts: &[Partition]) -> (Vec<Piece>, Vec<usize>) {
+/// element, 4 per hinge, as the partitions') and each partition's pieces.
+fn cut_into_pieces(parts: &[Partition]) -> (Vec<Piece>, Vec<usize>, Vec<Range<usize>>) {
     let mut pieces = Vec::new();
     let mut bounds = vec![0];
+    let mut pieces_of = Vec::with_capacity(parts.len());
     for part in parts {
         let (ns, nh) = (part.stretch.len(), part.hinges.len());
         let n = ns + nh;
         let count = n.div_ceil(ELEMENTS_PER_PIECE).max(1);
+        pieces_of.push(pieces.len()..pieces.len() + count);
         let mut slot = part.slots.start;
         for c in 0..count {
             // Elements [a, b) of the partition's storage order.
@@ -655,5 +699,5 @@ fn cut_into_pieces(parts: &[Partition]) -> (Vec<Piece>, Vec<usize>) {
         }
         debug_assert_eq!(slot, part.slots.end);
     }
-    (pieces, bounds)
+    (pieces, bounds, pieces_of)
 }
