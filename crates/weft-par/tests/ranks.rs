@@ -257,3 +257,87 @@ fn rank_shares_mirror_and_cover_every_fold() {
         }
     }
 }
+
+/// A rank keeps only the output slots it computes or receives
+/// (`RankShare::slots`), each partition of its own in one run and the
+/// received ones after them. Evaluated there and exchanged (the engine's
+/// `exchange_slots`, on ranks in one process), every owned vertex's fold of
+/// them has the bits of the fold of the world's slots, for placements by
+/// size and random ones, some ranks with no partition at all.
+#[test]
+fn rank_slots_fold_the_bits_of_the_world_slots() {
+    use weft_sim::share::RankShare;
+    use weft_sim::Executor;
+    let mut rng = weft_testkit::Rng(5);
+    for partitions in [4, 16, 64] {
+        let w = world(partitions);
+        let n = w.num_vertices();
+        let x: Vec<DVec3> = w.x.iter().map(|&p| p + rng.vec(2e-3)).collect();
+        let v: Vec<DVec3> = (0..n).map(|_| rng.vec(0.5)).collect();
+        let mut whole = vec![DVec3::ZERO; w.internal.num_slots()];
+        let bounds = w.internal.slot_bounds();
+        w.internal
+            .evaluate(&Serial, &bounds, &x, &v, &mut whole, None);
+        for ranks in 1..=4usize {
+            let random: Vec<u32> = (0..partitions)
+                .map(|_| rng.below(ranks as u64) as u32)
+                .collect();
+            for home in [w.internal.home_ranks(ranks), random] {
+                let folds = ranks::in_process(
+                    ranks,
+                    |_| Serial,
+                    |exec| {
+                        let r = exec.rank();
+                        let share = RankShare::placed(&w, r, ranks, home.clone());
+                        let slots = &share.slots;
+                        let own: usize = (w.internal.partitions.iter().zip(&home))
+                            .filter(|(_, &h)| h as usize == r)
+                            .map(|(p, _)| p.slots.len())
+                            .sum();
+                        let received: usize = share.recv_slots.iter().map(|(_, s)| s.len()).sum();
+                        assert_eq!(slots.len, own + received, "rank {r} of {ranks}");
+                        let mut out = vec![DVec3::NAN; slots.len];
+                        let (boundary, interior) =
+                            (&share.boundary_partition, &share.interior_partition);
+                        w.internal.evaluate(
+                            &Serial,
+                            &slots.bounds,
+                            &x,
+                            &v,
+                            &mut out,
+                            Some(boundary),
+                        );
+                        share
+                            .exchange_slots(&exec, &mut out, &mut |out| {
+                                w.internal.evaluate(
+                                    &Serial,
+                                    &slots.bounds,
+                                    &x,
+                                    &v,
+                                    out,
+                                    Some(interior),
+                                );
+                            })
+                            .expect("in process");
+                        (0..n)
+                            .filter(|&i| share.owns(i))
+                            .map(|i| (i, slots.fold(i, &out)))
+                            .collect::<Vec<_>>()
+                    },
+                );
+                let mut seen = vec![false; n];
+                for (i, f) in folds.into_iter().flatten() {
+                    assert!(!seen[i], "vertex {i} owned twice");
+                    seen[i] = true;
+                    let expected = w.internal.fold(i, &whole);
+                    assert_eq!(
+                        bits(f),
+                        bits(expected),
+                        "P = {partitions}, R = {ranks}, vertex {i}"
+                    );
+                }
+                assert!(seen.iter().all(|&s| s), "every vertex owned");
+            }
+        }
+    }
+}

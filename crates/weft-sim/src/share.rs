@@ -80,6 +80,48 @@ pub struct RankShare {
     /// it (`reader_ranks[reader_start[i]..reader_start[i + 1]]`, ascending).
     reader_start: Vec<u32>,
     reader_ranks: Vec<u32>,
+    /// This rank's output slots ([`RankSlots`]): only its partitions' and
+    /// those it receives, not the world's.
+    pub slots: RankSlots,
+}
+
+/// Where a rank keeps the internal forces' output slots it computes or
+/// folds: each of its partitions' slots in one run (partition `p`'s at
+/// `bounds[p]..bounds[p + 1]`, an empty run for another rank's partition),
+/// in partition order, then the slots received from each peer in one run
+/// (in [`RankShare::recv_slots`] order). A rank so holds about its share
+/// of the slots, not the world's (at 50k vertices the world's are 21 MB),
+/// and each owned vertex folds its slots at these places in global key
+/// order, the order of [`crate::internal::InternalForces::fold`].
+#[derive(Clone, Debug, Default)]
+pub struct RankSlots {
+    /// Per partition the start of its run, and the end of the last (the
+    /// evaluations' chunk bounds).
+    pub bounds: Vec<usize>,
+    /// How many slots the rank holds.
+    pub len: usize,
+    /// Per peer of [`RankShare::send_slots`]: the places of the slots sent.
+    send: Vec<Vec<u32>>,
+    /// Per peer of [`RankShare::recv_slots`]: where its slots go.
+    recv_at: Vec<usize>,
+    /// Per vertex `i` owned here, its slots' places in global key order
+    /// (`fold_slots[fold_start[i]..fold_start[i + 1]]`; empty for others).
+    fold_start: Vec<u32>,
+    fold_slots: Vec<u32>,
+}
+
+impl RankSlots {
+    /// The ordered fold of owned vertex `i`'s slots in `out` (laid out as
+    /// this describes): the bits of the fold of the world's slots.
+    #[inline]
+    pub fn fold(&self, i: usize, out: &[DVec3]) -> DVec3 {
+        let (a, b) = (self.fold_start[i] as usize, self.fold_start[i + 1] as usize);
+        let mut sum = DVec3::ZERO;
+        for &s in &self.fold_slots[a..b] {
+            sum += out[s as usize];
+        }
+        sum
+    }
 }
 
 /// What a rank keeps current through one pass's internal ticks.
@@ -95,6 +137,76 @@ pub struct PassShare {
     /// Per peer rank: the vertices the peer owns that this rank keeps live
     /// (ascending; the peer's `send` for this rank).
     pub recv: Vec<Vec<u32>>,
+}
+
+/// Rank `rank`'s [`RankSlots`], its partitions placed on ranks `home`,
+/// vertices owned as `owner` says, with the slots it sends and receives
+/// (global slot numbers).
+fn rank_slots(
+    world: &World,
+    rank: usize,
+    (home, owner): (&[u32], &[u32]),
+    (send_slots, recv_slots): (&[(usize, Vec<u32>)], &[(usize, Vec<u32>)]),
+) -> RankSlots {
+    let internal = &world.internal;
+    let mut bounds = Vec::with_capacity(home.len() + 1);
+    let mut len = 0;
+    for (p, part) in internal.partitions.iter().enumerate() {
+        bounds.push(len);
+        if home[p] as usize == rank {
+            len += part.slots.len();
+        }
+    }
+    bounds.push(len);
+    // The place of each slot of this rank's partitions: a partition's runs
+    // keep their order, so a binary search over the partitions finds it.
+    let starts: Vec<usize> = internal.partitions.iter().map(|p| p.slots.start).collect();
+    let own_place = |s: u32| -> u32 {
+        let p = starts.partition_point(|&start| start <= s as usize) - 1;
+        debug_assert_eq!(home[p] as usize, rank, "slot {s} is not computed here");
+        (bounds[p] + s as usize - starts[p]) as u32
+    };
+    let send = (send_slots.iter())
+        .map(|(_, slots)| slots.iter().map(|&s| own_place(s)).collect())
+        .collect();
+    let mut recv_at = Vec::with_capacity(recv_slots.len());
+    // (global slot, place) of the received slots, sorted by slot.
+    let mut received: Vec<(u32, u32)> = Vec::new();
+    for (_, slots) in recv_slots {
+        recv_at.push(len);
+        received.extend(
+            slots
+                .iter()
+                .enumerate()
+                .map(|(k, &s)| (s, (len + k) as u32)),
+        );
+        len += slots.len();
+    }
+    received.sort_unstable();
+    let place = |s: u32| -> u32 {
+        match received.binary_search_by_key(&s, |&(slot, _)| slot) {
+            Ok(k) => received[k].1,
+            Err(_) => own_place(s),
+        }
+    };
+    let n = world.num_vertices();
+    let mut fold_start = Vec::with_capacity(n + 1);
+    let mut fold_slots = Vec::new();
+    for i in 0..n {
+        fold_start.push(fold_slots.len() as u32);
+        if owner[i] as usize == rank {
+            fold_slots.extend(internal.incidence(i).iter().map(|&s| place(s)));
+        }
+    }
+    fold_start.push(fold_slots.len() as u32);
+    RankSlots {
+        bounds,
+        len,
+        send,
+        recv_at,
+        fold_start,
+        fold_slots,
+    }
 }
 
 impl RankShare {
@@ -191,6 +303,7 @@ impl RankShare {
         let interior_partition = (0..home.len())
             .map(|p| home[p] as usize == rank && !boundary_partition[p])
             .collect();
+        let slots = rank_slots(world, rank, (&home, &owner), (&send_slots, &recv_slots));
         RankShare {
             rank,
             ranks,
@@ -206,6 +319,7 @@ impl RankShare {
             folds_remote,
             reader_start,
             reader_ranks,
+            slots,
         }
     }
 
@@ -265,11 +379,10 @@ impl RankShare {
         out: &mut [DVec3],
         interior: &mut dyn FnMut(&mut [DVec3]),
     ) -> Result<(), CommError> {
-        let sends: Vec<(usize, Vec<f64>)> = self
-            .send_slots
-            .iter()
-            .map(|(peer, slots)| {
-                let words = slots.iter().flat_map(|&k| out[k as usize].to_array());
+        let sends: Vec<(usize, Vec<f64>)> = (self.send_slots.iter())
+            .zip(&self.slots.send)
+            .map(|((peer, _), places)| {
+                let words = places.iter().flat_map(|&k| out[k as usize].to_array());
                 (*peer, words.collect())
             })
             .collect();
@@ -279,9 +392,9 @@ impl RankShare {
             .map(|(peer, slots)| (*peer, 3 * slots.len()))
             .collect();
         let received = exec.exchange_words(sends, &recvs, &mut || interior(out))?;
-        for ((_, slots), words) in self.recv_slots.iter().zip(received) {
-            for (&k, c) in slots.iter().zip(words.chunks_exact(3)) {
-                out[k as usize] = DVec3::new(c[0], c[1], c[2]);
+        for (&at, words) in self.slots.recv_at.iter().zip(received) {
+            for (k, c) in words.chunks_exact(3).enumerate() {
+                out[at + k] = DVec3::new(c[0], c[1], c[2]);
             }
         }
         Ok(())

@@ -191,7 +191,7 @@ impl<E: Executor> Engine<E> {
             broad.spread(world.internal.home_ranks(exec.ranks()));
         }
         let mut engine = Self {
-            ws: Workspace::new(&world),
+            ws: Workspace::new(&world, share.as_ref()),
             broad,
             world,
             exec,

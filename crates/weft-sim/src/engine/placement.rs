@@ -100,7 +100,7 @@ impl<E: Executor> Engine<E> {
             predictor.hold_only(share.owner.clone(), rank as u32);
         }
         self.broad.spread(home);
-        self.ws.placed_again();
+        self.ws.placed_again(&share);
         self.share = Some(share);
     }
 }

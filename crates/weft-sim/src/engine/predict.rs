@@ -382,8 +382,13 @@ impl<E: Executor> Engine<E> {
         }
         let at_rest: &[bool] = at_rest;
         let out: &[DVec3] = out;
+        // (Over ranks an owned vertex's slots are at the rank's places.)
+        let fold = |i: usize| match &self.share {
+            None => w.internal.fold(i, out),
+            Some(share) => share.slots.fold(i, out),
+        };
         let acc_of = |i: usize| match w.inv_mass[i] > 0.0 && !at_rest[i] {
-            true => (w.internal.fold(i, out) - w.gravity * w.mass[i]) * -w.inv_mass[i],
+            true => (fold(i) - w.gravity * w.mass[i]) * -w.inv_mass[i],
             false => DVec3::ZERO,
         };
         let acc = &mut predictor.acc;

@@ -11,6 +11,7 @@ use crate::clock::Tick;
 use crate::engine::Engine;
 use crate::error::SimError;
 use crate::executor::{split_chunks, Executor};
+use crate::share::RankSlots;
 use crate::trace;
 use crate::world::World;
 
@@ -123,7 +124,8 @@ impl<E: Executor> Engine<E> {
         let owned_kicks = at_internal.filter(|&&(i, _)| owned(i as usize)).copied();
         bucket_by_run(&mut ws.kicks_by_run, runs, owned_kicks);
         let mut fused = FoldRun::runs(&mut ws.acc, &mut ws.v_new, runs);
-        let (out, xt, kicks) = (&ws.out, &ws.xt, &ws.kicks_by_run);
+        let rank = share.map(|s| &s.slots);
+        let (out, xt, kicks) = (Slots { out: &ws.out, rank }, &ws.xt, &ws.kicks_by_run);
         let owned_in_run = &ws.owned_in_run;
         let tick = TickConsts { out, xt, tsec, h };
         // Over ranks, the runs whose calm folds ran while this rank waited.
@@ -311,10 +313,30 @@ struct FoldRun<'a> {
 /// What every run of an internal tick reads: the internal forces' output
 /// slots, the positions at the tick, its time and the step.
 struct TickConsts<'a> {
-    out: &'a [DVec3],
+    out: Slots<'a>,
     xt: &'a [DVec3],
     tsec: f64,
     h: f64,
+}
+
+/// The internal forces' output slots a tick folds: the world's on one
+/// memory, a rank's over ranks ([`RankSlots`]: its own and those it
+/// received, at their places there).
+#[derive(Clone, Copy)]
+pub(super) struct Slots<'a> {
+    pub(super) out: &'a [DVec3],
+    pub(super) rank: Option<&'a RankSlots>,
+}
+
+impl Slots<'_> {
+    /// The ordered fold of vertex `i`'s slots (over ranks, an owned one's).
+    #[inline]
+    fn fold(&self, w: &World, i: usize) -> DVec3 {
+        match self.rank {
+            None => w.internal.fold(i, self.out),
+            Some(rank) => rank.fold(i, self.out),
+        }
+    }
 }
 
 /// The fused per-vertex pass at tick `t` over the vertices `listed` in each
@@ -324,7 +346,7 @@ struct TickConsts<'a> {
 pub(super) fn fold_listed<E: Executor>(
     exec: &E,
     w: &World,
-    (out, xt): (&[DVec3], &[DVec3]),
+    (out, xt): (Slots<'_>, &[DVec3]),
     t: Tick,
     (listed, runs): (&[Vec<u16>], &[usize]),
     (acc, v_new): (&mut [DVec3], &mut [DVec3]),
@@ -344,7 +366,7 @@ pub(super) fn fold_listed<E: Executor>(
 /// rank waits). Returns its first listed vertex that blows up.
 pub(super) fn fold_run_listed(
     w: &World,
-    (out, xt): (&[DVec3], &[DVec3]),
+    (out, xt): (Slots<'_>, &[DVec3]),
     t: Tick,
     (start, listed): (usize, &[u16]),
     (acc, v_new): (&mut [DVec3], &mut [DVec3]),
@@ -396,7 +418,7 @@ impl<'a> FoldRun<'a> {
         for j in js.clone() {
             let i = start + j;
             if w.inv_mass[i] > 0.0 {
-                let g = w.internal.fold(i, tick.out) - w.gravity * w.mass[i];
+                let g = tick.out.fold(w, i) - w.gravity * w.mass[i];
                 self.acc[j] = g * -tick.h;
             }
         }

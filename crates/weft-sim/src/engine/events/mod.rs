@@ -36,6 +36,7 @@ use crate::clock::Tick;
 use crate::error::SimError;
 use crate::executor::Executor;
 use crate::islands::Islands;
+use crate::share::RankShare;
 use crate::trace;
 use crate::world::World;
 use far::{may_be_far, Checked, FarSet};
@@ -238,26 +239,34 @@ fn in_runs(runs: &[usize], pick: impl Fn(usize) -> bool) -> Vec<Vec<u16>> {
 }
 
 impl Workspace {
-    /// Scratch for the world's vertices and internal force slots.
-    pub(super) fn new(world: &World) -> Self {
+    /// Scratch for the world's vertices and internal force slots (over
+    /// ranks, `share`: only the slots the rank computes or folds,
+    /// [`crate::share::RankSlots`]).
+    pub(super) fn new(world: &World, share: Option<&RankShare>) -> Self {
         let n = world.num_vertices();
+        let (bounds, slots) = match share {
+            None => (world.internal.slot_bounds(), world.internal.num_slots()),
+            Some(share) => (share.slots.bounds.clone(), share.slots.len),
+        };
         Workspace {
             xt: vec![DVec3::ZERO; n],
-            out: vec![DVec3::ZERO; world.internal.num_slots()],
+            out: vec![DVec3::ZERO; slots],
             acc: vec![DVec3::ZERO; n],
             v_new: vec![DVec3::ZERO; n],
             vertex_runs: (0..=n.div_ceil(VERTEX_RUN))
                 .map(|k| (k * VERTEX_RUN).min(n))
                 .collect(),
-            bounds: world.internal.slot_bounds(),
+            bounds,
             ..Default::default()
         }
     }
 
     /// Over ranks: the partitions were placed again (the owned vertices
-    /// changed).
-    pub(super) fn placed_again(&mut self) {
+    /// changed, and the slots the rank holds, `share.slots`).
+    pub(super) fn placed_again(&mut self, share: &RankShare) {
         self.owned_in_run.clear();
+        self.bounds.clone_from(&share.slots.bounds);
+        self.out = vec![DVec3::ZERO; share.slots.len];
     }
 
     /// The internal forces' slot bounds and output slots, as scratch
@@ -734,6 +743,7 @@ impl<E: Executor> Engine<E> {
         // the calm part of the internal tick (they need none of them): the
         // calm positions, then one partition's calm elements per piece.
         let (exec, world, ws) = (&self.exec, &self.world, &mut self.ws);
+        let rank = self.share.as_ref().map(|s| &s.slots);
         let runs = ws.vertex_runs.len().saturating_sub(1);
         let mut done = CalmProgress {
             positions: false,
@@ -762,7 +772,8 @@ impl<E: Executor> Engine<E> {
                 let k = next - calm.partitions.len();
                 let (a, b) = (ws.vertex_runs[k], ws.vertex_runs[k + 1]);
                 let listed = &calm.calm_fold_in_run[k];
-                let slots = (&ws.out[..], &ws.xt[..]);
+                let out = internal::Slots { out: &ws.out, rank };
+                let slots = (out, &ws.xt[..]);
                 let fold = (&mut ws.acc[a..b], &mut ws.v_new[a..b]);
                 let bad = internal::fold_run_listed(world, slots, e, (a, listed), fold);
                 done.folds[k] = Some(bad);
@@ -854,7 +865,7 @@ impl<E: Executor> Engine<E> {
                 let clock = Instant::now();
                 calm_forces(exec, world, calm, vertex_runs, (xt, out), e);
                 let runs = (&calm.calm_fold_in_run[..], &vertex_runs[..]);
-                let slots = (&out[..], &xt[..]);
+                let slots = (internal::Slots { out, rank: None }, &xt[..]);
                 bad = internal::fold_listed(
                     exec,
                     world,
