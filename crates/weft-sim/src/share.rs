@@ -139,6 +139,9 @@ pub struct PassShare {
     pub recv: Vec<Vec<u32>>,
 }
 
+/// A peer rank and slots (global numbers) that travel to or from it.
+type PeerSlots = (usize, Vec<u32>);
+
 /// Rank `rank`'s [`RankSlots`], its partitions placed on ranks `home`,
 /// vertices owned as `owner` says, with the slots it sends and receives
 /// (global slot numbers).
@@ -146,7 +149,7 @@ fn rank_slots(
     world: &World,
     rank: usize,
     (home, owner): (&[u32], &[u32]),
-    (send_slots, recv_slots): (&[(usize, Vec<u32>)], &[(usize, Vec<u32>)]),
+    (send_slots, recv_slots): (&[PeerSlots], &[PeerSlots]),
 ) -> RankSlots {
     let internal = &world.internal;
     let mut bounds = Vec::with_capacity(home.len() + 1);
