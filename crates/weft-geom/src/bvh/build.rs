@@ -23,8 +23,50 @@ impl Bvh {
         if n == 0 {
             return Bvh::default();
         }
-        // (center, id) pairs, permuted in place so the splits read memory
-        // sequentially; `order` is their id column at the end.
+        let mut bvh = Bvh::shaped_by(leaves);
+        bvh.refit_in_place(leaves);
+        bvh
+    }
+
+    /// As [`Bvh::build`] (the same tree), but the leaves are moved into
+    /// the tree's order rather than copied: a one-off tree over many
+    /// leaves (a mesh's self-intersection check) holds them once.
+    pub fn build_owned(mut leaves: Vec<Dop26>) -> Bvh {
+        leaves.truncate(u32::MAX as usize - 1);
+        if leaves.is_empty() {
+            return Bvh::default();
+        }
+        let mut bvh = Bvh::shaped_by(&leaves);
+        // leaf_bounds[i] = leaves[order[i]], permuted cycle by cycle: each
+        // place is read before it is written, the cycle's first saved.
+        let order = &bvh.order;
+        let mut placed = vec![false; leaves.len()];
+        for first in 0..leaves.len() {
+            if placed[first] {
+                continue;
+            }
+            let saved = leaves[first];
+            let mut j = first;
+            loop {
+                placed[j] = true;
+                let k = order[j] as usize;
+                if k == first {
+                    leaves[j] = saved;
+                    break;
+                }
+                leaves[j] = leaves[k];
+                j = k;
+            }
+        }
+        bvh.leaf_bounds = leaves;
+        bvh.fit_nodes();
+        bvh
+    }
+
+    /// The tree's nodes and leaf order over `leaves` (non-empty), its
+    /// bounds not yet fitted.
+    fn shaped_by(leaves: &[Dop26]) -> Bvh {
+        let n = leaves.len();
         let mut items: Vec<([f64; 3], u32)> = leaves
             .iter()
             .enumerate()
@@ -78,13 +120,39 @@ impl Bvh {
             stack.push(child + 1);
             stack.push(child);
         }
-        let mut bvh = Bvh {
+        Bvh {
             bounds: vec![Dop26::empty(); nodes.len()],
             nodes,
             leaf_bounds: Vec::new(),
             order: items.into_iter().map(|(_, i)| i).collect(),
-        };
-        bvh.refit_in_place(leaves);
-        bvh
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+
+    #[test]
+    fn owned_leaves_give_the_same_tree() {
+        for n in [0usize, 1, 7, 100, 1000] {
+            let leaves: Vec<Dop26> = (0..n)
+                .map(|i| {
+                    let mut d = Dop26::empty();
+                    let x = (i * 7919 % 1000) as f64 * 1e-3;
+                    let y = (i * 104_729 % 997) as f64 * 1e-3;
+                    d.add_point(DVec3::new(x, y, 0.5 * x));
+                    d.add_point(DVec3::new(x + 0.01, y - 0.02, y));
+                    d
+                })
+                .collect();
+            let copied = Bvh::build(&leaves);
+            let owned = Bvh::build_owned(leaves);
+            assert_eq!(owned.nodes, copied.nodes, "n = {n}");
+            assert_eq!(owned.order, copied.order, "n = {n}");
+            assert_eq!(owned.leaf_bounds, copied.leaf_bounds, "n = {n}");
+            assert_eq!(owned.bounds, copied.bounds, "n = {n}");
+        }
     }
 }

@@ -28,6 +28,11 @@ impl Bvh {
         self.leaf_bounds.clear();
         self.leaf_bounds
             .extend(self.order.iter().map(|&i| leaves[i as usize]));
+        self.fit_nodes();
+    }
+
+    /// Every node's bounds from the leaf bounds (in tree order).
+    pub(super) fn fit_nodes(&mut self) {
         for k in (0..self.nodes.len()).rev() {
             let node = self.nodes[k];
             let b = if node.is_leaf() {
