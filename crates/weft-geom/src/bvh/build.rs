@@ -67,6 +67,8 @@ impl Bvh {
     /// bounds not yet fitted.
     fn shaped_by(leaves: &[Dop26]) -> Bvh {
         let n = leaves.len();
+        // (center, id) pairs, permuted in place so the splits read memory
+        // sequentially; `order` is their id column at the end.
         let mut items: Vec<([f64; 3], u32)> = leaves
             .iter()
             .enumerate()
