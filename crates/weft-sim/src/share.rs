@@ -38,7 +38,29 @@ use glam::DVec3;
 use weft_core::NONE;
 
 use crate::executor::{place_in_blocks, CommError, Executor};
+use crate::internal::InternalForces;
 use crate::world::World;
+
+/// The internal forces' output slots a fold reads: the world's on one
+/// memory (`rank` none), a rank's over ranks ([`RankSlots`]: its own and
+/// those it received, at their places there). The internal tick and the
+/// layer predictor fold through it.
+#[derive(Clone, Copy)]
+pub(crate) struct Slots<'a> {
+    pub(crate) out: &'a [DVec3],
+    pub(crate) rank: Option<&'a RankSlots>,
+}
+
+impl Slots<'_> {
+    /// The ordered fold of vertex `i`'s slots (over ranks, an owned one's).
+    #[inline]
+    pub(crate) fn fold(&self, internal: &InternalForces, i: usize) -> DVec3 {
+        match self.rank {
+            None => internal.fold(i, self.out),
+            Some(rank) => rank.fold(i, self.out),
+        }
+    }
+}
 
 /// What one rank computes of each internal tick, and what travels.
 #[derive(Clone, Debug)]

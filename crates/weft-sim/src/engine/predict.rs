@@ -383,12 +383,10 @@ impl<E: Executor> Engine<E> {
         let at_rest: &[bool] = at_rest;
         let out: &[DVec3] = out;
         // (Over ranks an owned vertex's slots are at the rank's places.)
-        let fold = |i: usize| match &self.share {
-            None => w.internal.fold(i, out),
-            Some(share) => share.slots.fold(i, out),
-        };
+        let rank = self.share.as_ref().map(|s| &s.slots);
+        let slots = crate::share::Slots { out, rank };
         let acc_of = |i: usize| match w.inv_mass[i] > 0.0 && !at_rest[i] {
-            true => (fold(i) - w.gravity * w.mass[i]) * -w.inv_mass[i],
+            true => (slots.fold(&w.internal, i) - w.gravity * w.mass[i]) * -w.inv_mass[i],
             false => DVec3::ZERO,
         };
         let acc = &mut predictor.acc;

@@ -11,7 +11,7 @@ use crate::clock::Tick;
 use crate::engine::Engine;
 use crate::error::SimError;
 use crate::executor::{split_chunks, Executor};
-use crate::share::RankSlots;
+use crate::share::Slots;
 use crate::trace;
 use crate::world::World;
 
@@ -319,26 +319,6 @@ struct TickConsts<'a> {
     h: f64,
 }
 
-/// The internal forces' output slots a tick folds: the world's on one
-/// memory, a rank's over ranks ([`RankSlots`]: its own and those it
-/// received, at their places there).
-#[derive(Clone, Copy)]
-pub(super) struct Slots<'a> {
-    pub(super) out: &'a [DVec3],
-    pub(super) rank: Option<&'a RankSlots>,
-}
-
-impl Slots<'_> {
-    /// The ordered fold of vertex `i`'s slots (over ranks, an owned one's).
-    #[inline]
-    fn fold(&self, w: &World, i: usize) -> DVec3 {
-        match self.rank {
-            None => w.internal.fold(i, self.out),
-            Some(rank) => rank.fold(i, self.out),
-        }
-    }
-}
-
 /// The fused per-vertex pass at tick `t` over the vertices `listed` in each
 /// run of vertices (offsets; the runs cut at `runs`) that no island kicks:
 /// the calm part of an internal tick ([`super::Calm`]). Returns each run's
@@ -418,7 +398,7 @@ impl<'a> FoldRun<'a> {
         for j in js.clone() {
             let i = start + j;
             if w.inv_mass[i] > 0.0 {
-                let g = tick.out.fold(w, i) - w.gravity * w.mass[i];
+                let g = tick.out.fold(&w.internal, i) - w.gravity * w.mass[i];
                 self.acc[j] = g * -tick.h;
             }
         }

@@ -772,7 +772,7 @@ impl<E: Executor> Engine<E> {
                 let k = next - calm.partitions.len();
                 let (a, b) = (ws.vertex_runs[k], ws.vertex_runs[k + 1]);
                 let listed = &calm.calm_fold_in_run[k];
-                let out = internal::Slots { out: &ws.out, rank };
+                let out = crate::share::Slots { out: &ws.out, rank };
                 let slots = (out, &ws.xt[..]);
                 let fold = (&mut ws.acc[a..b], &mut ws.v_new[a..b]);
                 let bad = internal::fold_run_listed(world, slots, e, (a, listed), fold);
@@ -865,7 +865,7 @@ impl<E: Executor> Engine<E> {
                 let clock = Instant::now();
                 calm_forces(exec, world, calm, vertex_runs, (xt, out), e);
                 let runs = (&calm.calm_fold_in_run[..], &vertex_runs[..]);
-                let slots = (internal::Slots { out, rank: None }, &xt[..]);
+                let slots = (crate::share::Slots { out, rank: None }, &xt[..]);
                 bad = internal::fold_listed(
                     exec,
                     world,
