@@ -263,11 +263,44 @@ fn all_gather_over_mpi_on_five_ranks() {
     drop(transport);
 }
 
-/// What rank `from` sends rank `to` in exchange round `round`.
+/// The bytes rank `from` sends rank `to` in all-to-all round `round`.
 fn message(from: usize, to: usize, round: usize) -> Vec<u8> {
     let mut bytes = part(from, round + to);
     bytes.iter_mut().for_each(|b| *b ^= to as u8);
     bytes
+}
+
+/// The words rank `from` sends rank `to` in exchange `round`: bit patterns
+/// a value conversion would change (NaN payloads, a signalling NaN, signed
+/// zeros, subnormals, infinities) among ordinary ones, of a length that
+/// varies with the pair and the round (sometimes none).
+fn words_message(from: usize, to: usize, round: usize) -> Vec<f64> {
+    let special = [
+        f64::from_bits(0x7ff8_0000_dead_beef),
+        f64::from_bits(0x7ff0_0000_0000_0001),
+        f64::from_bits(0xfff8_0000_0000_0042),
+        -0.0,
+        0.0,
+        f64::from_bits(1),
+        -f64::MIN_POSITIVE / 3.0,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    let len = part(from, round + to).len() / 8;
+    (0..len)
+        .map(|i| {
+            if i % 7 == 3 {
+                special[(i / 7 + from + round) % special.len()]
+            } else {
+                f64::from_bits((i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ ((to as u64) << 52))
+            }
+        })
+        .collect()
+}
+
+/// Whether two word lists hold the same bits.
+fn same_bits(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
 }
 
 #[test]
@@ -297,23 +330,23 @@ fn exchange_over_mpi_on_three_ranks() {
         } else {
             vec![((rank + 1) % size, (rank + size - 1) % size)]
         };
-        let sends: Vec<(usize, Vec<u8>)> = peers
+        let sends: Vec<(usize, Vec<f64>)> = peers
             .iter()
-            .map(|&(to, _)| (to, message(rank, to, round)))
+            .map(|&(to, _)| (to, words_message(rank, to, round)))
             .collect();
         let recvs: Vec<(usize, usize)> = peers
             .iter()
-            .map(|&(_, from)| (from, message(from, rank, round).len()))
+            .map(|&(_, from)| (from, words_message(from, rank, round).len()))
             .collect();
-        expected_bytes += sends.iter().map(|(_, b)| b.len() as u64).sum::<u64>();
+        expected_bytes += sends.iter().map(|(_, w)| 8 * w.len() as u64).sum::<u64>();
         let mut overlapped = 0;
         let got = transport
             .exchange(sends, &recvs, &mut || overlapped += 1)
             .expect("exchange");
         assert_eq!(overlapped, 1);
-        for (&(from, _), bytes) in recvs.iter().zip(&got) {
+        for (&(from, _), words) in recvs.iter().zip(&got) {
             assert!(
-                bytes == &message(from, rank, round),
+                same_bits(words, &words_message(from, rank, round)),
                 "rank {rank}, round {round}: the message from rank {from} differs"
             );
         }

@@ -290,26 +290,7 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         recvs: &[(usize, usize)],
         overlap: &mut dyn FnMut(),
     ) -> Result<Vec<Vec<f64>>, CommError> {
-        let me = self.rank();
-        let sends: Vec<(usize, Vec<u8>)> = sends
-            .into_iter()
-            .map(|(peer, words)| (peer, word_bytes(words.len(), words)))
-            .collect();
-        let lens: Vec<(usize, usize)> = recvs.iter().map(|&(peer, n)| (peer, 8 * n)).collect();
-        let parts = self.transport.exchange(sends, &lens, overlap)?;
-        parts
-            .iter()
-            .zip(recvs)
-            .map(|(part, &(peer, n))| {
-                if part.len() != 8 * n {
-                    return Err(CommError(format!(
-                        "rank {me}: rank {peer} sent {} bytes, {n} words expected",
-                        part.len()
-                    )));
-                }
-                Ok(bytes_words(part).collect())
-            })
-            .collect()
+        Ok(self.transport.exchange(sends, recvs, overlap)?)
     }
 }
 

@@ -437,12 +437,17 @@ impl Transport for MpiTransport {
     /// messages with one source, tag and communicator in order), then
     /// `overlap` runs while they travel, then each is completed by polling.
     /// The lengths are known to both sides, so no length travels first.
+    /// The words go as `MPI_DOUBLE` from the caller's buffer and arrive in
+    /// the one returned: no byte copy on either side, and MPI moves a
+    /// contiguous predefined type between ranks of one byte order as it
+    /// is, bit for bit (`tests/mpi_transport.rs` sends NaN payloads,
+    /// signed zeros and subnormals).
     fn exchange(
         &self,
-        sends: Vec<(usize, Vec<u8>)>,
+        sends: Vec<(usize, Vec<f64>)>,
         recvs: &[(usize, usize)],
         overlap: &mut dyn FnMut(),
-    ) -> Result<Vec<Vec<u8>>, RankFailure> {
+    ) -> Result<Vec<Vec<f64>>, RankFailure> {
         let _collective = self
             .collective
             .lock()
@@ -456,27 +461,27 @@ impl Transport for MpiTransport {
         for &(j, len) in recvs {
             peer(j)?;
             Count::try_from(len).map_err(|_| {
-                self.failure(format!("{len} bytes from rank {j}: too large for MPI"))
+                self.failure(format!("{len} words from rank {j}: too large for MPI"))
             })?;
         }
-        for (j, bytes) in &sends {
+        for (j, words) in &sends {
             peer(*j)?;
-            Count::try_from(bytes.len()).map_err(|_| {
+            Count::try_from(words.len()).map_err(|_| {
                 self.failure(format!(
-                    "{} bytes to rank {j}: too large for MPI",
-                    bytes.len()
+                    "{} words to rank {j}: too large for MPI",
+                    words.len()
                 ))
             })?;
         }
-        let mut received: Vec<Vec<u8>> = recvs.iter().map(|&(_, len)| vec![0u8; len]).collect();
+        let mut received: Vec<Vec<f64>> = recvs.iter().map(|&(_, n)| vec![0.0; n]).collect();
         let counts = mpi::request::scope(|scope| {
             let mut sent = Vec::with_capacity(sends.len());
-            for (j, bytes) in &sends {
+            for (j, words) in &sends {
                 let world = self.mpi_call().world();
                 sent.push(
                     world
                         .process_at_rank(*j as mpi::Rank)
-                        .immediate_send_with_tag(scope, &bytes[..], EXCHANGE_TAG),
+                        .immediate_send_with_tag(scope, &words[..], EXCHANGE_TAG),
                 );
             }
             let mut arriving = Vec::with_capacity(recvs.len());
@@ -491,7 +496,7 @@ impl Transport for MpiTransport {
             overlap();
             let counts: Vec<Count> = arriving
                 .into_iter()
-                .map(|request| self.complete(request).count(u8::equivalent_datatype()))
+                .map(|request| self.complete(request).count(f64::equivalent_datatype()))
                 .collect();
             for request in sent {
                 self.complete(request);
@@ -500,11 +505,11 @@ impl Transport for MpiTransport {
         });
         for (&(j, len), count) in recvs.iter().zip(counts) {
             if usize::try_from(count).ok() != Some(len) {
-                return Err(self.failure(format!("rank {j} sent {count} bytes, {len} expected")));
+                return Err(self.failure(format!("rank {j} sent {count} words, {len} expected")));
             }
         }
-        for (_, bytes) in &sends {
-            self.sent.add(1, bytes.len() as u64);
+        for (_, words) in &sends {
+            self.sent.add(1, 8 * words.len() as u64);
         }
         if !sends.is_empty() || !recvs.is_empty() {
             self.sent.exchange();

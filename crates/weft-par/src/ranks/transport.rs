@@ -129,20 +129,23 @@ pub trait Transport: Send + Sync {
         overlap: &mut dyn FnMut() -> bool,
     ) -> Result<HeadsAndParts, RankFailure>;
 
-    /// **Point to point.** Starts sending `sends[k].1` to rank `sends[k].0`
-    /// and receiving `recvs[k].1` bytes from rank `recvs[k].0`, runs
-    /// `overlap` while they travel, then completes them; returns the received
-    /// byte strings in `recvs` order. Every peer named must make the matching
-    /// call (what `i` sends to `j` is what `j` receives from `i`, the same
-    /// length) at the same point of its run; messages between two ranks
-    /// arrive in the order they were sent. An error means a peer is gone or
-    /// broke that contract.
+    /// **Point to point.** Starts sending the words `sends[k].1` to rank
+    /// `sends[k].0` and receiving `recvs[k].1` words from rank `recvs[k].0`,
+    /// runs `overlap` while they travel, then completes them; returns the
+    /// received words in `recvs` order, with their exact bits. The caller's
+    /// words are sent where they lie (no byte copy: what travels every
+    /// internal tick is the largest buffer a rank holds at its peak). Every
+    /// peer named must make the matching call (what `i` sends to `j` is what
+    /// `j` receives from `i`, the same length) at the same point of its run;
+    /// messages between two ranks arrive in the order they were sent. An
+    /// error means a peer is gone or broke that contract. Traffic counts 8
+    /// bytes a word.
     fn exchange(
         &self,
-        sends: Vec<(usize, Vec<u8>)>,
+        sends: Vec<(usize, Vec<f64>)>,
         recvs: &[(usize, usize)],
         overlap: &mut dyn FnMut(),
-    ) -> Result<Vec<Vec<u8>>, RankFailure>;
+    ) -> Result<Vec<Vec<f64>>, RankFailure>;
 
     /// Messages and bytes this rank sent so far.
     fn traffic(&self) -> Traffic;
@@ -180,10 +183,10 @@ impl<T: Transport + ?Sized> Transport for &T {
 
     fn exchange(
         &self,
-        sends: Vec<(usize, Vec<u8>)>,
+        sends: Vec<(usize, Vec<f64>)>,
         recvs: &[(usize, usize)],
         overlap: &mut dyn FnMut(),
-    ) -> Result<Vec<Vec<u8>>, RankFailure> {
+    ) -> Result<Vec<Vec<f64>>, RankFailure> {
         (**self).exchange(sends, recvs, overlap)
     }
 
@@ -243,8 +246,16 @@ struct StepLog {
     mark_ns: u64,
 }
 
+/// One message between two ranks of a [`ChannelTransport`]: the bytes of a
+/// collective, or the words of an exchange, moved as they are.
+#[derive(Debug)]
+enum Payload {
+    Bytes(Vec<u8>),
+    Words(Vec<f64>),
+}
+
 /// Where a rank receives one peer's messages.
-type Inbox = Mutex<Receiver<Vec<u8>>>;
+type Inbox = Mutex<Receiver<Payload>>;
 
 /// Ranks that are threads of one process, connected by channels: each rank
 /// has its own memory, and everything it learns from a peer comes as a
@@ -253,7 +264,7 @@ type Inbox = Mutex<Receiver<Vec<u8>>>;
 pub struct ChannelTransport {
     rank: usize,
     /// `to[j]` sends to rank `j` (none to itself).
-    to: Vec<Option<Sender<Vec<u8>>>>,
+    to: Vec<Option<Sender<Payload>>>,
     /// `from[j]` receives from rank `j`: one channel per pair keeps each
     /// sender's messages in order, so the k-th message from `j` is `j`'s part
     /// of the k-th collective.
@@ -267,7 +278,7 @@ impl ChannelTransport {
     /// `ranks` connected transports, one per rank (index = rank).
     pub fn connected(ranks: usize) -> Vec<ChannelTransport> {
         let ranks = ranks.max(1);
-        let mut to: Vec<Vec<Option<Sender<Vec<u8>>>>> = (0..ranks)
+        let mut to: Vec<Vec<Option<Sender<Payload>>>> = (0..ranks)
             .map(|_| (0..ranks).map(|_| None).collect())
             .collect();
         let mut from: Vec<Vec<Option<Inbox>>> = (0..ranks)
@@ -365,9 +376,14 @@ impl ChannelTransport {
 
     /// Sends `bytes` to rank `j` (not this rank).
     fn send(&self, j: usize, bytes: Vec<u8>) -> Result<(), RankFailure> {
-        let to = self.end(&self.to, j)?;
         let len = bytes.len() as u64;
-        to.send(bytes).map_err(|_| self.gone(j))?;
+        self.send_payload(j, Payload::Bytes(bytes), len)
+    }
+
+    /// Sends `payload` (`len` bytes) to rank `j` (not this rank).
+    fn send_payload(&self, j: usize, payload: Payload, len: u64) -> Result<(), RankFailure> {
+        let to = self.end(&self.to, j)?;
+        to.send(payload).map_err(|_| self.gone(j))?;
         self.sent.add(1, len);
         Ok(())
     }
@@ -387,17 +403,38 @@ impl ChannelTransport {
         j: usize,
         work: &mut dyn FnMut() -> bool,
     ) -> Result<Vec<u8>, RankFailure> {
+        match self.receive_payload(j, work)? {
+            Payload::Bytes(bytes) => Ok(bytes),
+            Payload::Words(_) => Err(self.out_of_step(j)),
+        }
+    }
+
+    /// The next message from rank `j`, of either kind ([`Self::receive_while`]).
+    fn receive_payload(
+        &self,
+        j: usize,
+        work: &mut dyn FnMut() -> bool,
+    ) -> Result<Payload, RankFailure> {
         let from = self.end(&self.from, j)?;
         let inbox = from.lock().map_err(|_| self.gone(j))?;
         loop {
             match inbox.try_recv() {
-                Ok(bytes) => return Ok(bytes),
+                Ok(payload) => return Ok(payload),
                 Err(TryRecvError::Disconnected) => return Err(self.gone(j)),
                 Err(TryRecvError::Empty) if work() => {}
                 Err(TryRecvError::Empty) => {
                     return self.sent.waiting(|| inbox.recv()).map_err(|_| self.gone(j));
                 }
             }
+        }
+    }
+
+    /// Rank `j`'s next message is of the other kind: an exchange where a
+    /// collective was expected, or the reverse.
+    fn out_of_step(&self, j: usize) -> RankFailure {
+        RankFailure {
+            rank: self.rank,
+            what: format!("rank {j} is out of step (an exchange met a collective)"),
         }
     }
 }
@@ -499,10 +536,10 @@ impl Transport for ChannelTransport {
 
     fn exchange(
         &self,
-        sends: Vec<(usize, Vec<u8>)>,
+        sends: Vec<(usize, Vec<f64>)>,
         recvs: &[(usize, usize)],
         overlap: &mut dyn FnMut(),
-    ) -> Result<Vec<Vec<u8>>, RankFailure> {
+    ) -> Result<Vec<Vec<f64>>, RankFailure> {
         // Channels buffer: the sends complete at once, the work runs, then
         // the receives wait for what the peers sent.
         if !sends.is_empty() || !recvs.is_empty() {
@@ -512,27 +549,30 @@ impl Transport for ChannelTransport {
             false,
             None,
             (sends.iter())
-                .map(|(j, b)| (*j as u32, b.len() as u64))
+                .map(|(j, w)| (*j as u32, 8 * w.len() as u64))
                 .collect(),
             (recvs.iter())
-                .map(|&(j, len)| (j as u32, len as u64))
+                .map(|&(j, n)| (j as u32, 8 * n as u64))
                 .collect(),
         );
-        for (j, bytes) in sends {
-            self.send(j, bytes)?;
+        for (j, words) in sends {
+            let len = 8 * words.len() as u64;
+            self.send_payload(j, Payload::Words(words), len)?;
         }
         overlap();
         recvs
             .iter()
-            .map(|&(j, len)| {
-                let bytes = self.receive(j)?;
-                if bytes.len() != len {
+            .map(|&(j, n)| {
+                let Payload::Words(words) = self.receive_payload(j, &mut || false)? else {
+                    return Err(self.out_of_step(j));
+                };
+                if words.len() != n {
                     return Err(RankFailure {
                         rank: self.rank,
-                        what: format!("rank {j} sent {} bytes, {len} expected", bytes.len()),
+                        what: format!("rank {j} sent {} words, {n} expected", words.len()),
                     });
                 }
-                Ok(bytes)
+                Ok(words)
             })
             .collect()
     }
@@ -668,9 +708,9 @@ mod tests {
                         .unwrap();
                     let (next, prev) = ((r + 1) % n, (r + n - 1) % n);
                     let ring = t
-                        .exchange(vec![(next, vec![r as u8; 3])], &[(prev, 3)], &mut || {})
+                        .exchange(vec![(next, vec![r as f64; 3])], &[(prev, 3)], &mut || {})
                         .unwrap();
-                    assert_eq!(ring, vec![vec![prev as u8; 3]]);
+                    assert_eq!(ring, vec![vec![prev as f64; 3]]);
                     let all = t.all_gather(vec![r as u8; (r + round) % 3]).unwrap();
                     (got, all)
                 })
@@ -702,7 +742,7 @@ mod tests {
 
     #[test]
     fn exchanges_reach_their_peers_in_order_between_collectives() {
-        // A ring: rank r sends round-dependent bytes to r + 1 and receives
+        // A ring: rank r sends round-dependent words to r + 1 and receives
         // from r - 1, with an all-gather between the exchanges; the overlap
         // runs once per exchange.
         let transports = ChannelTransport::connected(3);
@@ -712,7 +752,7 @@ mod tests {
             let mut overlaps = 0;
             let mut got = Vec::new();
             for round in 0..4usize {
-                let mine = vec![(10 * r + round) as u8; r + round];
+                let mine = vec![(10 * r + round) as f64; r + round];
                 let len = prev + round;
                 let recv = t
                     .exchange(vec![(next, mine)], &[(prev, len)], &mut || overlaps += 1)
@@ -724,8 +764,8 @@ mod tests {
         });
         for (prev, overlaps, got) in results {
             assert_eq!(overlaps, 4);
-            for (round, bytes) in got.iter().enumerate() {
-                assert_eq!(bytes, &vec![(10 * prev + round) as u8; prev + round]);
+            for (round, words) in got.iter().enumerate() {
+                assert_eq!(words, &vec![(10 * prev + round) as f64; prev + round]);
             }
         }
         // a wrong length is an error, not a silent misread
@@ -733,13 +773,21 @@ mod tests {
         std::thread::scope(|s| {
             let t1 = &transports[1];
             s.spawn(move || {
-                t1.exchange(vec![(0, vec![1, 2, 3])], &[], &mut || {})
+                t1.exchange(vec![(0, vec![1.0, 2.0, 3.0])], &[], &mut || {})
                     .unwrap()
             });
             let err = transports[0]
                 .exchange(vec![], &[(1, 2)], &mut || {})
                 .unwrap_err();
-            assert!(err.to_string().contains("3 bytes, 2 expected"), "{err}");
+            assert!(err.to_string().contains("3 words, 2 expected"), "{err}");
+        });
+        // an exchange that meets a collective is an error, not a misread
+        let transports = ChannelTransport::connected(2);
+        std::thread::scope(|s| {
+            let t1 = &transports[1];
+            s.spawn(move || t1.exchange(vec![(0, vec![1.0])], &[], &mut || {}).unwrap());
+            let err = transports[0].all_gather(vec![0u8]).unwrap_err();
+            assert!(err.to_string().contains("out of step"), "{err}");
         });
         let mut transports = ChannelTransport::connected(2);
         let last = transports.pop().unwrap();
