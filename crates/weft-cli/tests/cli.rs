@@ -348,7 +348,9 @@ fn crumple_keeps_every_stencil_outside_its_next_layer() {
     let s = load_scene(&scene("crumple.toml"), &["time.end=0.2".into()]).unwrap();
     let mut e = Engine::new(World::build(&s.world).unwrap(), Serial).unwrap();
     let (tris, inv_mass) = (e.world.triangles.clone(), e.world.inv_mass.clone());
-    let edges = e.world.topology.edges.clone();
+    let edges = weft_core::Topology::build(e.world.num_vertices(), &tris)
+        .unwrap()
+        .edges;
     let dynamic = |k: &StencilKey| k.v.iter().any(|&i| inv_mass[i as usize] > 0.0);
     let mut stencils = Vec::new();
     for v in 0..e.world.num_vertices() as u32 {

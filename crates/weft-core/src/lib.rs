@@ -22,7 +22,7 @@ pub use glam::DVec3;
 pub use mesh::TriMesh;
 pub use names::{ElementNames, MeshIds};
 pub use stencil::{StencilKey, StencilKind};
-pub use topology::{Hinge, Topology};
+pub use topology::{Hinge, Topology, VertexFaces};
 pub use validate::{validate, MeshError, MeshWarning, MAX_COORDINATE};
 
 /// The one floating-point type of weft.

@@ -172,11 +172,40 @@ impl Topology {
         &self.vertex_faces[a..b]
     }
 
+    /// The faces around each vertex, the topology's vectors moved out: what
+    /// a built world keeps of its topology (the edges and hinges are in its
+    /// internal elements by then).
+    pub fn into_vertex_faces(self) -> VertexFaces {
+        VertexFaces {
+            offsets: self.vertex_face_offsets,
+            faces: self.vertex_faces,
+        }
+    }
+
     /// Index of edge `{a, b}`, if it exists.
     pub fn edge_index(&self, a: u32, b: u32) -> Option<u32> {
         self.edges
             .binary_search(&[a.min(b), a.max(b)])
             .ok()
             .map(|i| i as u32)
+    }
+}
+
+/// The faces incident to each vertex, ascending (CSR).
+#[derive(Clone, Debug, Default)]
+pub struct VertexFaces {
+    /// `faces[offsets[v]..offsets[v + 1]]` are vertex `v`'s.
+    offsets: Vec<u32>,
+    faces: Vec<u32>,
+}
+
+impl VertexFaces {
+    /// Faces incident to vertex `v`, ascending.
+    pub fn of(&self, v: u32) -> &[u32] {
+        let (a, b) = (
+            self.offsets[v as usize] as usize,
+            self.offsets[v as usize + 1] as usize,
+        );
+        &self.faces[a..b]
     }
 }

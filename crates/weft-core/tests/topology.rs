@@ -64,11 +64,14 @@ fn check_consistency(n: usize, tris: &[[u32; 3]], topo: &Topology) {
     let interior = topo.edge_faces.iter().filter(|ef| ef[1] != NONE).count();
     assert_eq!(topo.hinges.len(), interior);
     assert_eq!(topo.vertex_face_offsets.len(), n + 1);
+    // What a built world keeps: the same faces, brute force as the oracle.
+    let kept = topo.clone().into_vertex_faces();
     for v in 0..n as u32 {
         let expect: Vec<u32> = (0..tris.len() as u32)
             .filter(|&f| tris[f as usize].contains(&v))
             .collect();
         assert_eq!(topo.faces_of_vertex(v), expect.as_slice(), "vertex {v}");
+        assert_eq!(kept.of(v), expect.as_slice(), "vertex {v}, kept");
     }
 }
 

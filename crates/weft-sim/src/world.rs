@@ -8,7 +8,7 @@ use std::ops::Range;
 use std::sync::Arc;
 
 use glam::DVec3;
-use weft_core::{StencilKey, StencilKind, Topology, TriMesh};
+use weft_core::{StencilKey, StencilKind, Topology, TriMesh, VertexFaces};
 
 use crate::clock::{Lattice, Tick};
 use crate::config::{ContactConfig, LimitsConfig, TimeConfig};
@@ -95,10 +95,12 @@ pub struct World {
     /// Inverse masses; 0 for kinematic vertices.
     pub inv_mass: Vec<f64>,
     pub triangles: Vec<[u32; 3]>,
-    /// The mesh's adjacency and the internal elements never change after
-    /// the build: shared by a world's clones (a bench's runs, simulated
-    /// ranks), not copied.
-    pub topology: Arc<Topology>,
+    /// The faces around each vertex and the internal elements never change
+    /// after the build: shared by a world's clones (a bench's runs,
+    /// simulated ranks), not copied. Of the mesh's topology only the faces
+    /// around each vertex are kept (the edges and hinges live on in the
+    /// internal elements): every rank holds the world's.
+    pub vertex_faces: Arc<VertexFaces>,
     pub internal: Arc<InternalForces>,
     pub gravity: DVec3,
     pub scripts: Vec<Script>,
@@ -527,7 +529,7 @@ impl World {
             mass,
             inv_mass,
             triangles: all.triangles,
-            topology: Arc::new(topology),
+            vertex_faces: Arc::new(topology.into_vertex_faces()),
             internal: Arc::new(internal),
             gravity: spec.gravity,
             scripts,

@@ -146,6 +146,9 @@ pub fn scene_info(scene: &weft_io::scene::Scene) -> anyhow::Result<SceneInfo> {
         .iter()
         .map(|e| e.max_principal_strain(&e.verts.map(|i| w.x[i as usize])))
         .fold(0.0f64, f64::max);
+    // A built world keeps only the faces around each vertex: the edges'
+    // faces are derived again for the cut.
+    let topology = weft_core::Topology::build(w.num_vertices(), &w.triangles)?;
     let steps = w.lattice.steps_per_window;
     let window = w.lattice.window();
     let end = w.lattice.window_end_at_or_after(scene.end_time);
@@ -159,8 +162,7 @@ pub fn scene_info(scene: &weft_io::scene::Scene) -> anyhow::Result<SceneInfo> {
         internal_stencils: w.internal.num_stencils(),
         partitions: w.partitioning.count,
         partition_method: w.partitioning.method.into(),
-        cut_edges: w
-            .topology
+        cut_edges: topology
             .edge_faces
             .iter()
             .filter(|&&[a, b]| {

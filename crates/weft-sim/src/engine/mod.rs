@@ -649,7 +649,7 @@ impl<E: Executor> Engine<E> {
     fn stencils_near(&self, i: u32, candidates: &[StencilKey]) -> Vec<StencilKey> {
         let w = &self.world;
         let mut ring: Vec<u32> = vec![i];
-        for &f in w.topology.faces_of_vertex(i) {
+        for &f in w.vertex_faces.of(i) {
             ring.extend_from_slice(&w.triangles[f as usize]);
         }
         ring.sort_unstable();

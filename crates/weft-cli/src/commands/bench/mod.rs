@@ -447,14 +447,16 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         overrides.push(format!("size={n}"));
     }
     overrides.extend(a.overrides.iter().cloned());
-    let scene = load_scene(&a.scene, &overrides)?;
+    let mut scene = load_scene(&a.scene, &overrides)?;
     // One world for every run: partitioned for the most workers asked for
     // (the results do not depend on it).
-    let mut spec = scene.world.clone();
-    spec.workers = rank_list.iter().max().copied().unwrap_or(1)
+    scene.world.workers = rank_list.iter().max().copied().unwrap_or(1)
         * a.threads.iter().max().copied().unwrap_or(1).max(1);
-    let world = weft_par::build_world(&spec)?;
+    let world = weft_par::build_world(&scene.world)?;
     let hash = scene_hash(&scene, &world);
+    // The world holds the meshes now: the scene's copies are not kept
+    // through the runs, whose peak memory is measured.
+    scene.world.objects = Vec::new();
     let checkpoint = a.checkpoint.clone().unwrap_or_else(|| {
         let size = a.size.map_or("default".to_string(), |n| n.to_string());
         PathBuf::from("bench").join(format!("{}-{size}.wckp", scene.name))
@@ -558,14 +560,22 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
     machine::reset_peak_rss();
     let mut all: Vec<((usize, usize), Vec<Sample>)> = Vec::new();
     let last = (rank_list.last().copied(), threads.last().copied());
+    // Each run gets a copy of the world and the start; the last one gets
+    // them, so that no run's peak holds a copy it does not use.
+    let mut inputs = Some((world, start));
     for &ranks in &rank_list {
         for &n in &threads {
             let mut samples = Vec::with_capacity(a.repeats);
             for r in 0..a.repeats {
-                let traced =
-                    a.trace.is_some() && (Some(ranks), Some(n)) == last && r + 1 == a.repeats;
-                weft_sim::trace::set_recording(traced);
-                let s = run_once(launch, ranks, n, &world, &start, a.windows, projecting)
+                let final_run = (Some(ranks), Some(n)) == last && r + 1 == a.repeats;
+                weft_sim::trace::set_recording(a.trace.is_some() && final_run);
+                let (world, start) = if final_run {
+                    inputs.take().expect("the inputs, until the last run")
+                } else {
+                    let (world, start) = inputs.as_ref().expect("the inputs");
+                    (world.clone(), start.clone())
+                };
+                let s = run_once(launch, ranks, n, world, start, a.windows, projecting)
                     .with_context(|| format!("{ranks} rank(s) × {n} thread(s), run {}", r + 1))?;
                 say(format!(
                     "weft bench: {ranks} rank(s) × {n} thread(s), run {}/{}: {:.4} s per window",
@@ -666,8 +676,8 @@ fn run_once(
     launch: Launch<'_>,
     ranks: usize,
     threads: usize,
-    world: &World,
-    start: &EngineState,
+    world: World,
+    start: EngineState,
     windows: u64,
     record_steps: bool,
 ) -> anyhow::Result<Sample> {
@@ -675,10 +685,9 @@ fn run_once(
     match launch {
         Launch::Local if ranks == 1 => {
             if threads == 1 {
-                measure(world.clone(), Serial, start.clone(), windows)
+                measure(world, Serial, start, windows)
             } else {
                 let exec = pool()?;
-                let (world, start) = (world.clone(), start.clone());
                 exec.clone()
                     .install(move || measure(world, exec, start, windows))
             }
@@ -727,7 +736,6 @@ fn run_once(
             use weft_par::ranks::Transport;
             let local = pool()?;
             let exec = weft_par::Ranks::new(t, local.clone());
-            let (world, start) = (world.clone(), start.clone());
             let mut s = local.install(move || measure(world, exec, start, windows))?;
             // Collective: every rank's own figures to every rank.
             let mine = postcard::to_allocvec(&s.own)?;
