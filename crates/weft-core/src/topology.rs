@@ -34,10 +34,8 @@ pub struct Topology {
     pub edge_faces: Vec<[u32; 2]>,
     /// One hinge per interior edge, in edge order.
     pub hinges: Vec<Hinge>,
-    /// CSR offsets into `vertex_faces` (length `num_vertices + 1`).
-    pub vertex_face_offsets: Vec<u32>,
-    /// Faces incident to each vertex, ascending.
-    pub vertex_faces: Vec<u32>,
+    /// The faces incident to each vertex, ascending.
+    pub vertex_faces: VertexFaces,
     /// `true` for vertices on a boundary edge.
     pub is_boundary_vertex: Vec<bool>,
 }
@@ -157,29 +155,17 @@ impl Topology {
             face_edges,
             edge_faces,
             hinges,
-            vertex_face_offsets,
-            vertex_faces,
+            vertex_faces: VertexFaces {
+                offsets: vertex_face_offsets,
+                faces: vertex_faces,
+            },
             is_boundary_vertex,
         })
     }
 
     /// Faces incident to vertex `v`, ascending.
     pub fn faces_of_vertex(&self, v: u32) -> &[u32] {
-        let (a, b) = (
-            self.vertex_face_offsets[v as usize] as usize,
-            self.vertex_face_offsets[v as usize + 1] as usize,
-        );
-        &self.vertex_faces[a..b]
-    }
-
-    /// The faces around each vertex, the topology's vectors moved out: what
-    /// a built world keeps of its topology (the edges and hinges are in its
-    /// internal elements by then).
-    pub fn into_vertex_faces(self) -> VertexFaces {
-        VertexFaces {
-            offsets: self.vertex_face_offsets,
-            faces: self.vertex_faces,
-        }
+        self.vertex_faces.of(v)
     }
 
     /// Index of edge `{a, b}`, if it exists.
@@ -191,8 +177,10 @@ impl Topology {
     }
 }
 
-/// The faces incident to each vertex, ascending (CSR).
-#[derive(Clone, Debug, Default)]
+/// The faces incident to each vertex, ascending (CSR): all a built world
+/// keeps of its topology (the edges and hinges are in its internal
+/// elements by then).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct VertexFaces {
     /// `faces[offsets[v]..offsets[v + 1]]` are vertex `v`'s.
     offsets: Vec<u32>,
@@ -200,6 +188,16 @@ pub struct VertexFaces {
 }
 
 impl VertexFaces {
+    /// How many vertices.
+    pub fn len(&self) -> usize {
+        self.offsets.len().saturating_sub(1)
+    }
+
+    /// Whether there are no vertices.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
     /// Faces incident to vertex `v`, ascending.
     pub fn of(&self, v: u32) -> &[u32] {
         let (a, b) = (

@@ -529,7 +529,7 @@ impl World {
             mass,
             inv_mass,
             triangles: all.triangles,
-            vertex_faces: Arc::new(topology.into_vertex_faces()),
+            vertex_faces: Arc::new(topology.vertex_faces),
             internal: Arc::new(internal),
             gravity: spec.gravity,
             scripts,

@@ -133,8 +133,9 @@ pub trait Transport: Send + Sync {
     /// `sends[k].0` and receiving `recvs[k].1` words from rank `recvs[k].0`,
     /// runs `overlap` while they travel, then completes them; returns the
     /// received words in `recvs` order, with their exact bits. The caller's
-    /// words are sent where they lie (no byte copy: what travels every
-    /// internal tick is the largest buffer a rank holds at its peak). Every
+    /// words are sent where they lie (no byte copy: the narrow phase's
+    /// trajectories, the largest exchange, were held twice at a rank's
+    /// peak). Every
     /// peer named must make the matching call (what `i` sends to `j` is what
     /// `j` receives from `i`, the same length) at the same point of its run;
     /// messages between two ranks arrive in the order they were sent. An
