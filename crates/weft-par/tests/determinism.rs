@@ -35,6 +35,9 @@ struct Outcome {
     spanning_at_peak: (usize, usize),
     /// Messages this rank sent to others.
     messages: u64,
+    /// Over ranks with `contact.split_islands`: vertices whose unit moved
+    /// to another rank in a merge (`Engine::moved_between_ranks`).
+    moved_between_ranks: u64,
     /// The bits of every vertex's position, velocity and clock at the end.
     motion: Vec<[u64; 7]>,
     /// Every window's statistics, less the wall-clock times.
@@ -97,6 +100,7 @@ fn run_hooked<E: Executor>(
         peak_active: e.totals.max_active_stencils,
         spanning_at_peak,
         messages: e.executor().traffic().messages,
+        moved_between_ranks: e.moved_between_ranks,
         motion: (0..e.world.x.len())
             .map(|i| {
                 let (x, v) = (e.world.x[i], e.world.v[i]);
@@ -251,6 +255,12 @@ fn split_islands_keep_the_bits_on_every_executor() {
                 assert_eq!(a, b, "{label}: statistics of window {}", b.window);
             }
         }
+        // The units are spread over the ranks, and promotions merged units
+        // of two ranks (every rank counts every move alike).
+        let moved = outcomes[0].moved_between_ranks;
+        println!("{ranks} ranks: {moved} vertices moved between ranks");
+        assert!(moved > 0, "{ranks} ranks: no unit moved between ranks");
+        assert!(outcomes.iter().all(|o| o.moved_between_ranks == moved));
     }
 }
 

@@ -228,6 +228,35 @@ fn rank_shares_mirror_and_cover_every_fold() {
                         "{ctx}: vertex {i} received"
                     );
                 }
+                // Units moved to other ranks mid-pass (`keep_live`, called
+                // alike on every rank): the vertices are kept current where
+                // they went, and each rank still receives from each peer
+                // exactly what the peer sends it.
+                let n = w.num_vertices();
+                let moves: Vec<(usize, u32)> = (0..40)
+                    .map(|k| ((k * 7919 + 13) % n, ((k * 31) % ranks) as u32))
+                    .collect();
+                let moved = |s: &RankShare| {
+                    let mut pass = s.pass([(0u32, island_rank)]);
+                    for &(i, to) in &moves {
+                        s.keep_live(&mut pass, i, to);
+                    }
+                    pass
+                };
+                let mine = moved(share);
+                for &(i, to) in &moves {
+                    if to as usize == r {
+                        assert!(mine.live[i], "{ctx}: vertex {i} moved here");
+                    }
+                }
+                for peer in (0..ranks).filter(|&p| p != r) {
+                    let theirs = moved(&shares[peer]);
+                    assert_eq!(mine.recv[peer], theirs.send[r], "{ctx}: moved, from {peer}");
+                }
+                for i in 0..n {
+                    let received = mine.recv[share.owner[i] as usize].contains(&(i as u32));
+                    assert_eq!(received, mine.live[i] && !share.owns(i), "{ctx}: moved {i}");
+                }
                 // Live here: owned, or read here by a partition or the
                 // island (never more).
                 for i in 0..w.num_vertices() {

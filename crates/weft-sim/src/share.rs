@@ -388,6 +388,36 @@ impl RankShare {
         PassShare { live, send, recv }
     }
 
+    /// Vertex `i` is kept current on rank `rank` from now on in the pass
+    /// `pass` (over ranks, a unit holding it moved there): there it is
+    /// live and received off its owner at the internal ticks, and its owner
+    /// sends it there. Every rank calls this alike. Returns whether it
+    /// became live here.
+    pub fn keep_live(&self, pass: &mut PassShare, i: usize, rank: u32) -> bool {
+        let owner = self.owner[i];
+        let me = self.rank as u32;
+        if rank == owner {
+            return false;
+        }
+        let add = |list: &mut Vec<u32>| {
+            if let Err(at) = list.binary_search(&(i as u32)) {
+                list.insert(at, i as u32);
+            }
+        };
+        if rank == me {
+            if pass.live[i] {
+                return false;
+            }
+            pass.live[i] = true;
+            add(&mut pass.recv[owner as usize]);
+            return true;
+        }
+        if owner == me {
+            add(&mut pass.send[rank as usize]);
+        }
+        false
+    }
+
     /// Whether vertex `i` is folded and advanced on this rank.
     #[inline]
     pub fn owns(&self, i: usize) -> bool {

@@ -140,6 +140,10 @@ pub struct Engine<E: Executor = Serial> {
     events_load: Option<EventsLoad>,
     /// How many times the partitions were placed again (`placement.rs`).
     pub placements: u64,
+    /// Over ranks with `contact.split_islands`: vertices whose unit moved
+    /// to another rank when a promotion merged units of two ranks, since
+    /// the start.
+    pub moved_between_ranks: u64,
     /// Evaluate every penalty-layer event exactly (no sleeping, no
     /// distance-bound skip): the same bits, slower; for verifying the skips.
     every_layer_event: bool,
@@ -205,6 +209,7 @@ impl<E: Executor> Engine<E> {
             share,
             events_load: None,
             placements: 0,
+            moved_between_ranks: 0,
             every_layer_event: false,
             one_island: false,
             island_pack: events::PACK_STENCILS,

@@ -57,7 +57,7 @@ use glam::DVec3;
 use weft_core::{StencilKey, StencilKind};
 use weft_geom::distance::{separation_lower_bound, stencil_closest, Direction};
 
-use super::island::{sleep, SegmentOutput};
+use super::island::sleep;
 use super::CAP_CHECK_RUN;
 use crate::clock::Tick;
 use crate::dormancy::{breaks_cap, BREAKPOINTS_PER_WAKE, HEADROOM};
@@ -388,6 +388,11 @@ impl FarSet {
         (self.key[f], self.depth[f], self.pack[f])
     }
 
+    /// Whether a far stencil watches vertex `i`.
+    pub(super) fn watches(&self, i: usize) -> bool {
+        self.offsets.get(i) != self.offsets.get(i + 1)
+    }
+
     /// The far stencils watching vertex `i`.
     fn watchers(&self, i: usize) -> &[u32] {
         &self.of_vertex[self.offsets[i] as usize..self.offsets[i + 1] as usize]
@@ -504,35 +509,34 @@ impl FarSet {
 
     /// Step 3, after the islands ran `[s, e]` from the world's state at `s`
     /// (not yet written): of the far stencils whose vertices broke their
-    /// caps or piled up breakpoints in `outputs` (every unit's output of
-    /// the segment, reruns included), those that may have come within
-    /// `eta_1` in the segment. Returns them ascending, marked promoted (the
+    /// caps (`fast`: `(vertex, speed²)`) or piled up breakpoints (`added`:
+    /// `(vertex, count)`) in the segment (over every unit's output, reruns
+    /// included), those that may have come within `eta_1` in it. Returns them ascending, marked promoted (the
     /// caller merges them into units and reruns those, then checks again);
     /// with none, [`FarSet::commit`] ends the segment. Changes nothing else,
     /// so a check after a rerun sees only the final outputs.
-    pub(super) fn check<'a>(
+    pub(super) fn check(
         &mut self,
         w: &World,
         (s, e): (Tick, Tick),
-        outputs: impl Iterator<Item = &'a SegmentOutput>,
+        fast: impl Iterator<Item = (u32, f64)>,
+        added: impl Iterator<Item = (u32, u32)>,
         checked: &mut Checked,
     ) -> Vec<u32> {
         self.clear_scratch();
         if self.key.is_empty() {
             return Vec::new();
         }
-        for out in outputs {
-            for &(i, speed2) in &out.fast {
-                let iu = i as usize;
+        for (i, speed2) in fast {
+            let iu = i as usize;
+            self.touch(i);
+            self.fastest[iu] = self.fastest[iu].max(speed2);
+        }
+        for (i, count) in added {
+            let iu = i as usize;
+            if self.watches(iu) && count > 0 {
                 self.touch(i);
-                self.fastest[iu] = self.fastest[iu].max(speed2);
-            }
-            for &(i, _, _) in &out.breakpoints {
-                let iu = i as usize;
-                if self.offsets[iu] != self.offsets[iu + 1] {
-                    self.touch(i);
-                    self.added[iu] += 1;
-                }
+                self.added[iu] += count;
             }
         }
         let mut doubtful = Vec::new();

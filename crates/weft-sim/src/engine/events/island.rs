@@ -207,10 +207,13 @@ pub(super) struct SegmentOutput {
     /// friction impulses in (layer, key) order, as separate terms.
     pub at_internal: Vec<(u32, DVec3)>,
     /// Every new velocity of a vertex whose speed broke its far stencils'
-    /// cap (`Shared::far_cap`): `(vertex, speed²)`. Read where the island
-    /// ran, never sent.
-    #[serde(skip)]
+    /// cap (`Shared::far_cap`): `(vertex, speed²)`. Over ranks with the
+    /// units spread, sent to every rank (each checks every far stencil).
     pub fast: Vec<(u32, f64)>,
+    /// Over ranks with the units spread: the segment's breakpoints of each
+    /// vertex a far stencil watches, `(vertex, count)`, sent to every rank
+    /// (where the island ran, `breakpoints` tells them).
+    pub far_added: Vec<(u32, u32)>,
     /// Exact evaluations, kicks and the smallest distance evaluated.
     pub evaluations: u64,
     pub kicks: u64,
@@ -224,6 +227,19 @@ pub(super) struct SegmentOutput {
     /// that carries them, `super::units`).
     #[serde(skip)]
     pub far: super::units::FarCounts,
+}
+
+impl SegmentOutput {
+    /// Drops every entry of the vertices `gone` (ascending): over ranks,
+    /// the results of units merged and run again.
+    pub(super) fn drop_vertices(&mut self, gone: &[u32]) {
+        let kept = |i: u32| gone.binary_search(&i).is_err();
+        self.moved.retain(|m| kept(m.0));
+        self.breakpoints.retain(|b| kept(b.0));
+        self.at_internal.retain(|k| kept(k.0));
+        self.fast.retain(|f| kept(f.0));
+        self.far_added.retain(|f| kept(f.0));
+    }
 }
 
 /// A contact island's stencils, its vertices' state while it runs, and
@@ -392,6 +408,11 @@ impl Island {
         if ticks > 0 {
             self.dormancy.add_breakpoints(self.vertices.len(), ticks);
         }
+    }
+
+    /// How many stencils it holds.
+    pub(super) fn stencils(&self) -> usize {
+        self.members.len()
     }
 
     /// Its stencils (key, depth), in key order.

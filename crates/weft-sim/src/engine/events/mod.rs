@@ -225,6 +225,13 @@ fn calm_forces<E: Executor>(
     (world.internal).evaluate_in_pieces(exec, (xt, &world.v), out, mask);
 }
 
+/// Inserts `j` into the ascending `list` unless it is there.
+fn insert_sorted(list: &mut Vec<u16>, j: u16) {
+    if let Err(at) = list.binary_search(&j) {
+        list.insert(at, j);
+    }
+}
+
 /// The offsets in each run of [`VERTEX_RUN`] vertices (cut at `runs`) of
 /// the vertices `pick` keeps.
 fn in_runs(runs: &[usize], pick: impl Fn(usize) -> bool) -> Vec<Vec<u16>> {
@@ -319,6 +326,19 @@ fn largest_first(costs: &[f64]) -> Vec<u32> {
 /// How far above the mean load a rank may be filled with items at home
 /// ([`place_near_home`]).
 const HOME_SLACK: f64 = 0.1;
+
+/// The rank owning most of `vertices` under the placement by size
+/// (`reference_owner`: not moved by the partitions placed by load), the
+/// lowest of equals: the home of a pack or unit of them.
+fn home_rank(share: &RankShare, vertices: &[u32]) -> u32 {
+    let mut votes = vec![0usize; share.ranks];
+    for &i in vertices {
+        votes[share.reference_owner[i as usize] as usize] += 1;
+    }
+    (0..share.ranks)
+        .max_by(|&a, &b| votes[a].cmp(&votes[b]).then(b.cmp(&a)))
+        .expect("a rank") as u32
+}
 
 /// Places items of the given costs on `ranks` ranks, largest first (the
 /// locality-aware balancing of the paper's Algorithm 2): on the item's
@@ -544,27 +564,26 @@ impl<E: Executor> Engine<E> {
                 // under the placement by size (`reference_owner`: not
                 // moved by the partitions placed by load).
                 let home: Vec<u32> = (0..packs.len())
-                    .map(|k| {
-                        let mut votes = vec![0usize; share.ranks];
-                        for &i in packs.vertices_of(k) {
-                            votes[share.reference_owner[i as usize] as usize] += 1;
-                        }
-                        (0..share.ranks)
-                            .max_by(|&a, &b| votes[a].cmp(&votes[b]).then(b.cmp(&a)))
-                            .expect("a rank") as u32
-                    })
+                    .map(|k| home_rank(share, packs.vertices_of(k)))
                     .collect();
                 place_near_home(&pack_cost, &home, share.ranks)
             }
         };
         // This rank's packs as units; split, the islands of their near
-        // stencils, with the far stencils beside.
+        // stencils, with the far stencils beside. Split over ranks, the
+        // units are spread: every rank builds every unit's spec and watches
+        // every far stencil, and each unit runs on the rank placed for it
+        // (near the owners of its vertices, by its stencils).
         let me = self.exec.rank() as u32;
-        let mine = |k: u32| pack_rank[k as usize] == me;
         let split = self.far_stencils && !self.one_island && !self.every_layer_event;
+        let spread = split && self.share.is_some();
+        let mine = |k: u32| spread || pack_rank[k as usize] == me;
         let h_el = w.lattice.internal_step();
         let mut checked = Checked::default();
-        let (specs, far) = if split {
+        // Over ranks: every vertex a unit's stencils read, with the unit's
+        // rank (`u32::MAX`: every rank).
+        let mut reads: Vec<(u32, u32)> = Vec::new();
+        let (specs, far, rank_of) = if split {
             let mut pack_of = vec![0u32; active.len()];
             for k in 0..packs.len() {
                 for &a in packs.stencils_of(k) {
@@ -582,6 +601,9 @@ impl<E: Executor> Engine<E> {
             let mut near = vec![true; active.len()];
             for (&a, &f) in candidates.iter().zip(&is_far) {
                 near[a] = !f;
+                if f && spread {
+                    reads.extend(active[a].0.v.map(|i| (i, u32::MAX)));
+                }
             }
             let near: Vec<usize> = (0..active.len())
                 .filter(|&a| near[a] && mine(pack_of[a]))
@@ -599,7 +621,20 @@ impl<E: Executor> Engine<E> {
                     (units.vertices_of(u).to_vec(), members)
                 })
                 .collect::<Vec<UnitSpec>>();
-            (specs, far)
+            let rank_of = self.share.as_ref().filter(|_| spread).map(|share| {
+                let cost: Vec<f64> = specs.iter().map(|s| s.1.len() as f64).collect();
+                let home: Vec<u32> = (specs.iter()).map(|s| home_rank(share, &s.0)).collect();
+                let rank_of = place_near_home(&cost, &home, share.ranks);
+                for (spec, &r) in specs.iter().zip(&rank_of) {
+                    reads.extend(spec.1.iter().flat_map(|m| m.0.v.map(|i| (i, r))));
+                }
+                // The kinematic vertices every unit may come to read.
+                let kinematic =
+                    (active.iter().flat_map(|a| a.0.v)).filter(|&i| w.inv_mass[i as usize] == 0.0);
+                reads.extend(kinematic.map(|i| (i, u32::MAX)));
+                (me, rank_of)
+            });
+            (specs, far, rank_of)
         } else {
             let specs = (0..packs.len())
                 .filter(|&k| mine(k as u32))
@@ -610,17 +645,30 @@ impl<E: Executor> Engine<E> {
                     (packs.vertices_of(k).to_vec(), members)
                 })
                 .collect::<Vec<UnitSpec>>();
-            (specs, FarSet::default())
+            (specs, FarSet::default(), None)
         };
+        if self.share.is_some() && !spread {
+            // Every vertex a pack's stencils read (near and far), with the
+            // pack's rank.
+            reads = (0..packs.len())
+                .flat_map(|k| {
+                    let r = pack_rank[k];
+                    (packs.stencils_of(k).iter())
+                        .flat_map(move |&a| active[a as usize].0.v.map(|i| (i, r)))
+                })
+                .collect();
+        }
         // The trajectories' start (every vertex's first breakpoint: a
         // memory-bound loop) beside the units' states (a giant island's
         // takes one thread).
         let (traj, exec) = (&mut self.traj, &self.exec);
-        let mut args = Some((specs, far, checked, through));
+        let mut args = Some((specs, far, checked, through, rank_of));
         let mut units = None;
         exec.join(&mut || traj.begin(t0, &w.x), &mut || {
-            let (specs, far, checked, through) = args.take().expect("built once");
-            units = Some(Units::new(exec, w, specs, far, checked, t0, through));
+            let (specs, far, checked, through, rank_of) = args.take().expect("built once");
+            units = Some(Units::new(
+                exec, w, specs, far, checked, t0, through, rank_of,
+            ));
         });
         let ws = &mut self.ws;
         ws.pass_end = t1;
@@ -676,14 +724,12 @@ impl<E: Executor> Engine<E> {
             }
         });
         if let Some(share) = &self.share {
-            // Every vertex a pack's stencils read (near and far), with the
-            // pack's rank.
-            let reads = (0..packs.len()).flat_map(|k| {
-                let r = pack_rank[k];
-                (packs.stencils_of(k).iter())
-                    .flat_map(move |&a| active[a as usize].0.v.map(|i| (i, r)))
-            });
-            ws.pass_share = share.pass(reads);
+            let ranks = share.ranks as u32;
+            let every = |(i, r): (u32, u32)| match r {
+                u32::MAX => (0..ranks).map(|r| (i, r)).collect::<Vec<_>>(),
+                r => vec![(i, r)],
+            };
+            ws.pass_share = share.pass(reads.into_iter().flat_map(every));
             let live = &ws.pass_share.live;
             ws.live_in_run = in_runs(&ws.vertex_runs, |i| live[i]);
             if let Some(calm) = &mut ws.calm {
@@ -723,6 +769,14 @@ impl<E: Executor> Engine<E> {
             // (On every rank alike: no active stencil.)
             return Ok((Vec::new(), SegmentTotals::default(), CalmDone::Nothing));
         }
+        let (ranks, me) = (self.exec.ranks(), self.exec.rank() as u32);
+        let cpu = (ranks > 1).then(|| self.exec.work_cpu_seconds());
+        let spread = self.ws.units.spread();
+        if spread {
+            let home = &self.share.as_ref().expect("over ranks").reference_owner;
+            let moves = (self.ws.units).before(&self.exec, &self.world, (s, e), home);
+            self.migrate(&moves)?;
+        }
         let pass = Pass {
             world: &self.world,
             layer_consts,
@@ -730,15 +784,22 @@ impl<E: Executor> Engine<E> {
             pass_end: self.ws.pass_end,
             split_batches: true,
         };
-        let (ranks, me) = (self.exec.ranks(), self.exec.rank() as u32);
-        let cpu = (ranks > 1).then(|| self.exec.work_cpu_seconds());
-        let outputs = (self.ws.units).segment(&self.exec, &pass, (s, e), internal);
-        let totals = SegmentTotals::of(&outputs);
+        // This rank's units' outputs (spread: with their units, and the far
+        // stencils' counts kept apart: every rank has the same).
+        let mut own: Vec<(u32, SegmentOutput)> = Vec::new();
+        let outputs = if spread {
+            own = (self.ws.units).run(&self.exec, &pass, (s, e), internal);
+            Vec::new()
+        } else {
+            (self.ws.units).segment(&self.exec, &pass, (s, e), internal)
+        };
+        let mine = || own.iter().map(|o| &o.1).chain(&outputs);
+        let totals = SegmentTotals::of(mine());
         if ranks == 1 {
             return Ok((outputs, totals, CalmDone::Nothing));
         }
         counts.island_cpu += self.exec.work_cpu_seconds() - cpu.expect("over ranks");
-        let parts = self.address(&outputs);
+        let parts = self.address(mine());
         // While the islands' results travel, this rank computes pieces of
         // the calm part of the internal tick (they need none of them): the
         // calm positions, then one partition's calm elements per piece.
@@ -784,26 +845,144 @@ impl<E: Executor> Engine<E> {
         };
         let (heads, received) = exec.all_to_all(totals.words(), parts, &mut calm_piece)?;
         counts.internal_seconds += seconds;
-        let mut all = SegmentTotals::default();
-        for (j, head) in heads.iter().enumerate() {
-            let theirs = SegmentTotals::from_words(head).ok_or_else(|| {
-                SimError::Ranks(crate::executor::CommError(format!(
-                    "rank {me}: rank {j} sent a malformed segment head"
-                )))
-            })?;
-            all.add(&theirs);
-        }
-        let mut outputs = outputs;
-        outputs.extend(
+        let mut all = SegmentTotals::summed(&heads, me as usize)?;
+        let theirs = |received: Vec<Option<SegmentOutput>>| {
             (received.into_iter().enumerate())
                 .filter(|(j, _)| *j != me as usize)
-                .filter_map(|(_, part)| part),
-        );
+                .filter_map(|(_, part)| part)
+        };
+        let mut outputs = outputs;
+        outputs.extend(theirs(received));
         let done = match calm {
             true => CalmDone::Partly(done),
             false => CalmDone::Nothing,
         };
+        if spread {
+            let cpu = self.exec.work_cpu_seconds();
+            all = self.check_spread(layer_consts, (s, e), internal, &mut own, &mut outputs, all)?;
+            counts.island_cpu += self.exec.work_cpu_seconds() - cpu;
+            own.extend(outputs.into_iter().map(|o| (u32::MAX, o)));
+            outputs = own.into_iter().map(|o| o.1).collect();
+        }
         Ok((outputs, all, done))
+    }
+
+    /// Over ranks with the units spread, after a segment's all-to-all:
+    /// every rank checks every far stencil against every unit's output
+    /// (this rank's units' `own`, the others' parts in `theirs`); while a
+    /// check promotes, the merged units move to their ranks, run the
+    /// segment again there, and their results replace the old ones in
+    /// another all-to-all. Returns the segment's totals (`totals`: the
+    /// first all-to-all's) with the far stencils' counts.
+    fn check_spread(
+        &mut self,
+        layer_consts: &[(f64, f64, Tick)],
+        (s, e): (Tick, Tick),
+        internal: bool,
+        own: &mut Vec<(u32, SegmentOutput)>,
+        theirs: &mut Vec<SegmentOutput>,
+        mut totals: SegmentTotals,
+    ) -> Result<SegmentTotals, SimError> {
+        let _span = trace::span("far after");
+        let me = self.exec.rank();
+        loop {
+            let merged = {
+                let fast = (own.iter().map(|o| &o.1).chain(theirs.iter()))
+                    .flat_map(|o| o.fast.iter().copied());
+                let here = (own.iter()).flat_map(|o| o.1.breakpoints.iter().map(|b| (b.0, 1)));
+                let added = here.chain(theirs.iter().flat_map(|o| o.far_added.iter().copied()));
+                let home = &self.share.as_ref().expect("over ranks").reference_owner;
+                (self.ws.units).check(&self.exec, &self.world, (s, e), fast, added, home)
+            };
+            let Some(merged) = merged else {
+                break;
+            };
+            self.migrate(&merged.moves)?;
+            let pass = Pass {
+                world: &self.world,
+                layer_consts,
+                exhaustive: self.every_layer_event,
+                pass_end: self.ws.pass_end,
+                split_batches: true,
+            };
+            let rerun = (self.ws.units).rerun(&self.exec, &pass, (s, e), internal, &merged.changed);
+            let gone = |u: &u32| {
+                merged.changed.binary_search(u).is_ok() || merged.emptied.binary_search(u).is_ok()
+            };
+            own.retain(|(u, _)| !gone(u));
+            for part in theirs.iter_mut() {
+                part.drop_vertices(&merged.vertices);
+            }
+            let parts = self.address(rerun.iter().map(|o| &o.1));
+            own.extend(rerun);
+            own.sort_unstable_by_key(|o| o.0);
+            let mine = SegmentTotals::of(own.iter().map(|o| &o.1));
+            let (heads, received) = self.exec.all_to_all(mine.words(), parts, &mut || false)?;
+            totals = SegmentTotals::summed(&heads, me)?;
+            theirs.extend(
+                (received.into_iter().enumerate())
+                    .filter(|(j, _)| *j != me)
+                    .filter_map(|(_, part)| part),
+            );
+        }
+        let far = self.ws.units.finish(internal);
+        totals.add(&SegmentTotals::of(std::iter::once(&far)));
+        Ok(totals)
+    }
+
+    /// Over ranks with the units spread: the vertices of `moves` whose unit
+    /// now runs on another rank. Each goes from the rank that ran it to its
+    /// new one with its state (point to point: every rank knows the moves),
+    /// and from now on its owner sends that rank its new velocities at the
+    /// internal ticks.
+    fn migrate(&mut self, moves: &[units::Move]) -> Result<(), SimError> {
+        if moves.is_empty() {
+            return Ok(());
+        }
+        let share = self.share.as_ref().expect("over ranks");
+        let me = share.rank as u32;
+        let w = &mut self.world;
+        let mut sends: std::collections::BTreeMap<usize, Vec<f64>> = Default::default();
+        let mut recvs: std::collections::BTreeMap<usize, Vec<u32>> = Default::default();
+        for &(i, from, to) in moves {
+            let k = i as usize;
+            if from == me && to != me {
+                let words = sends.entry(to as usize).or_default();
+                words.extend(w.x[k].to_array());
+                words.extend(w.v[k].to_array());
+                words.push(f64::from_bits(w.tau[k]));
+            } else if to == me && from != me {
+                recvs.entry(from as usize).or_default().push(i);
+            }
+        }
+        let lengths: Vec<(usize, usize)> = (recvs.iter())
+            .map(|(&peer, list)| (peer, 7 * list.len()))
+            .collect();
+        let received =
+            (self.exec).exchange_words(sends.into_iter().collect(), &lengths, &mut || {})?;
+        for ((_, list), words) in recvs.iter().zip(received) {
+            for (&i, c) in list.iter().zip(words.chunks_exact(7)) {
+                let k = i as usize;
+                w.x[k] = DVec3::new(c[0], c[1], c[2]);
+                w.v[k] = DVec3::new(c[3], c[4], c[5]);
+                w.tau[k] = c[6].to_bits();
+            }
+        }
+        let ws = &mut self.ws;
+        for &(i, _, to) in moves {
+            if share.keep_live(&mut ws.pass_share, i as usize, to) {
+                // Newly kept current here: positions at the internal ticks
+                // too (an island vertex, so on the calm part's island side).
+                let k = ws.vertex_runs.partition_point(|&b| b <= i as usize) - 1;
+                let j = (i as usize - ws.vertex_runs[k]) as u16;
+                insert_sorted(&mut ws.live_in_run[k], j);
+                if let Some(calm) = &mut ws.calm {
+                    insert_sorted(&mut calm.island_in_run[k], j);
+                }
+            }
+        }
+        self.moved_between_ranks += moves.iter().filter(|m| m.1 != m.2).count() as u64;
+        Ok(())
     }
 
     /// On one memory, every island's segment `[s, e)` and its kicks at the
@@ -890,19 +1069,47 @@ impl<E: Executor> Engine<E> {
     /// holds their trajectories and folds their velocities). The islands'
     /// vertices are disjoint, so each part keeps each vertex's entries in
     /// their order.
-    fn address(&self, outputs: &[SegmentOutput]) -> Vec<Option<SegmentOutput>> {
+    fn address<'a>(
+        &self,
+        outputs: impl Iterator<Item = &'a SegmentOutput>,
+    ) -> Vec<Option<SegmentOutput>> {
         let share = self.share.as_ref().expect("over ranks");
         let me = share.rank as u32;
         let mut parts: Vec<SegmentOutput> = vec![SegmentOutput::default(); share.ranks];
+        let units = &self.ws.units;
+        let spread = units.spread();
+        let others = || (0..share.ranks as u32).filter(|&r| r != me);
         for out in outputs {
             for m in &out.moved {
                 let i = m.0 as usize;
+                if spread && units.watches(m.0) {
+                    // (every rank watches every far stencil)
+                    others().for_each(|r| parts[r as usize].moved.push(*m));
+                    continue;
+                }
                 let owner = share.owner[i];
                 let readers = share.readers(i).iter().copied();
                 for r in std::iter::once(owner).chain(readers) {
                     if r != me {
                         parts[r as usize].moved.push(*m);
                     }
+                }
+            }
+            if spread {
+                for r in others() {
+                    parts[r as usize].fast.extend_from_slice(&out.fast);
+                }
+                // Each watched vertex's breakpoints, counted (a vertex's
+                // are consecutive: one island's, in time order).
+                let mut added: Vec<(u32, u32)> = Vec::new();
+                for b in out.breakpoints.iter().filter(|b| units.watches(b.0)) {
+                    match added.last_mut() {
+                        Some(last) if last.0 == b.0 => last.1 += 1,
+                        _ => added.push((b.0, 1)),
+                    }
+                }
+                for r in others() {
+                    parts[r as usize].far_added.extend_from_slice(&added);
                 }
             }
             for b in &out.breakpoints {
@@ -922,7 +1129,8 @@ impl<E: Executor> Engine<E> {
             .into_iter()
             .map(|p| {
                 let empty = p.moved.is_empty() && p.breakpoints.is_empty();
-                (!(empty && p.at_internal.is_empty())).then_some(p)
+                let far = p.fast.is_empty() && p.far_added.is_empty();
+                (!(empty && far && p.at_internal.is_empty())).then_some(p)
             })
             .collect()
     }
@@ -1026,7 +1234,7 @@ impl Default for SegmentTotals {
 
 impl SegmentTotals {
     /// The totals of `outputs` (in their order).
-    fn of(outputs: &[SegmentOutput]) -> Self {
+    fn of<'a>(outputs: impl IntoIterator<Item = &'a SegmentOutput>) -> Self {
         let mut totals = SegmentTotals::default();
         for out in outputs {
             totals.add(&SegmentTotals {
@@ -1074,6 +1282,21 @@ impl SegmentTotals {
             self.far.reruns,
             self.far.largest,
         ]
+    }
+
+    /// The totals of every rank's head (as [`SegmentTotals::words`]), in
+    /// rank order; `me`: this rank, for the error.
+    fn summed(heads: &[Vec<u64>], me: usize) -> Result<Self, SimError> {
+        let mut all = SegmentTotals::default();
+        for (j, head) in heads.iter().enumerate() {
+            let theirs = SegmentTotals::from_words(head).ok_or_else(|| {
+                SimError::Ranks(crate::executor::CommError(format!(
+                    "rank {me}: rank {j} sent a malformed segment head"
+                )))
+            })?;
+            all.add(&theirs);
+        }
+        Ok(all)
     }
 
     fn from_words(w: &[u64]) -> Option<Self> {

@@ -85,6 +85,31 @@ pub(super) struct Units {
     most_breakpoints: Vec<u32>,
     skipped: Vec<u32>,
     caps: Vec<AtomicU64>,
+    /// Over ranks with `contact.split_islands`, the units spread: per unit
+    /// the rank running it (every rank agrees), and the spec of each unit
+    /// another rank runs (what a merge here would build it from). Empty:
+    /// every unit runs here.
+    rank_of: Vec<u32>,
+    remote: Vec<Option<UnitSpec>>,
+    me: u32,
+    /// The segment's far-stencil counts and evaluations so far
+    /// (`Units::before` to `Units::finish`).
+    seg_counts: FarCounts,
+    seg_checked: Checked,
+}
+
+/// A vertex whose unit moved to another rank: `(vertex, from, to)`.
+pub(super) type Move = (u32, u32, u32);
+
+/// What a promotion merged: the new units (every rank's), the units
+/// emptied into them, the dynamic vertices of the new units, and the
+/// vertices whose unit now runs on another rank.
+#[derive(Debug, Default)]
+pub(super) struct Merged {
+    pub changed: Vec<u32>,
+    pub emptied: Vec<u32>,
+    pub vertices: Vec<u32>,
+    pub moves: Vec<Move>,
 }
 
 /// A unit to build: its dynamic vertices (ascending) and its stencils
@@ -103,7 +128,10 @@ impl Units {
         checked: Checked,
         t0: Tick,
         events_at_depth: Vec<u64>,
+        spread: Option<(u32, Vec<u32>)>,
     ) -> Self {
+        let (me, rank_of) = spread.unwrap_or_default();
+        let here = |u: usize| rank_of.is_empty() || rank_of[u] == me;
         let mut unit_of_vertex = vec![NONE; w.num_vertices()];
         for (u, (vertices, _)) in specs.iter().enumerate() {
             for &i in vertices {
@@ -121,13 +149,29 @@ impl Units {
         kinematic.sort_unstable();
         kinematic.dedup();
         let kinematic = SharedCaps::new(kinematic, |i| w.v[i as usize]);
-        let specs: Vec<Mutex<Option<UnitSpec>>> =
+        // The units another rank runs keep their specs here; the others
+        // are built on the executor.
+        let mut remote: Vec<Option<UnitSpec>> = Vec::new();
+        let mut specs: Vec<Mutex<Option<UnitSpec>>> =
             specs.into_iter().map(|s| Mutex::new(Some(s))).collect();
-        let islands = exec.map(specs.len(), &|u| {
-            let (vertices, members) =
-                (specs[u].lock().expect("a spec").take()).expect("built once");
-            Mutex::new(Island::of(vertices, members, w, t0, &kinematic))
-        });
+        if !rank_of.is_empty() {
+            remote = (specs.iter_mut().enumerate())
+                .map(|(u, spec)| {
+                    (!here(u))
+                        .then(|| spec.get_mut().expect("a spec").take())
+                        .flatten()
+                })
+                .collect();
+        }
+        let islands = exec.map(
+            specs.len(),
+            &|u| match specs[u].lock().expect("a spec").take() {
+                Some((vertices, members)) => {
+                    Mutex::new(Island::of(vertices, members, w, t0, &kinematic))
+                }
+                None => Mutex::default(),
+            },
+        );
         let pending = (
             FarCounts {
                 far: far.len() as u64,
@@ -150,7 +194,28 @@ impl Units {
             most_breakpoints: vec![0; n_units],
             skipped: vec![0; n_units],
             caps: (0..w.num_vertices()).map(|_| AtomicU64::new(0)).collect(),
+            rank_of,
+            remote,
+            me,
+            seg_counts: FarCounts::default(),
+            seg_checked: Checked::default(),
         }
+    }
+
+    /// Whether unit `u` runs on this rank.
+    fn here(&self, u: usize) -> bool {
+        self.rank_of.is_empty() || self.rank_of[u] == self.me
+    }
+
+    /// Whether the units are spread over ranks (each rank then watches
+    /// every far stencil: [`Units::watches`]).
+    pub(super) fn spread(&self) -> bool {
+        !self.rank_of.is_empty()
+    }
+
+    /// Whether a far stencil watches vertex `i`.
+    pub(super) fn watches(&self, i: u32) -> bool {
+        self.far.watches(i as usize)
     }
 
     /// Every unit's segment `[s, e)` (and its kicks at the internal tick `e`
@@ -158,7 +223,9 @@ impl Units {
     /// it: certified again before, checked after, promoted and the segment
     /// run again where a check fails. Returns the units' outputs in unit
     /// order, then one output holding the far stencils' evaluations and
-    /// counts.
+    /// counts. (Every unit runs here: one memory, or over ranks the units
+    /// of this rank's packs. Spread over ranks, the engine runs the same
+    /// steps with the exchanges between them.)
     pub(super) fn segment<E: Executor>(
         &mut self,
         exec: &E,
@@ -167,93 +234,181 @@ impl Units {
         internal: bool,
     ) -> Vec<SegmentOutput> {
         let w = pass.world;
+        let moves = self.before(exec, w, (s, e), &[]);
+        debug_assert!(moves.is_empty(), "every unit runs here");
+        let mut outputs = self.run(exec, pass, (s, e), internal);
+        let _after = trace::span("far after");
+        loop {
+            let fast = outputs.iter().flat_map(|o| o.1.fast.iter().copied());
+            let added = (outputs.iter()).flat_map(|o| o.1.breakpoints.iter().map(|b| (b.0, 1)));
+            let Some(merged) = self.check(exec, w, (s, e), fast, added, &[]) else {
+                break;
+            };
+            let rerun = self.rerun(exec, pass, (s, e), internal, &merged.changed);
+            let gone = |u: &u32| merged.changed.contains(u) || merged.emptied.contains(u);
+            outputs.retain(|(u, _)| !gone(u));
+            outputs.extend(rerun);
+        }
+        outputs.sort_unstable_by_key(|o| o.0);
+        let mut outputs: Vec<SegmentOutput> = outputs.into_iter().map(|o| o.1).collect();
+        outputs.push(self.finish(internal));
+        outputs
+    }
+
+    /// A segment's first step, at its start `s` (the world holds the state
+    /// at `s`): the kinematic vertices' caps shown the internal tick's
+    /// velocities, the far stencils certified again, and those that cannot
+    /// be promoted (`home`: over ranks, the rank a unit of loose vertices
+    /// goes to). Returns the vertices whose unit now runs on another rank.
+    pub(super) fn before<E: Executor>(
+        &mut self,
+        exec: &E,
+        w: &World,
+        (s, e): (Tick, Tick),
+        home: &[u32],
+    ) -> Vec<Move> {
         self.kinematic_woken.clear();
         if self.after_internal {
             // The internal tick gave the kinematic vertices new velocities.
             (self.kinematic).observe(|i| w.v[i as usize], &mut self.kinematic_woken);
         }
-        let (mut counts, mut checked) = std::mem::take(&mut self.pending);
+        let (counts, mut checked) = std::mem::take(&mut self.pending);
+        self.seg_counts = counts;
         let before = trace::span("far before");
         let promote = (self.far).before_segment(exec, w, (s, e), self.after_internal, &mut checked);
+        self.seg_checked = checked;
         drop(before);
-        if !promote.is_empty() {
-            let _span = trace::span("far promote");
-            counts.promoted += promote.len() as u64;
-            self.promote(exec, &promote, w, s);
+        if promote.is_empty() {
+            return Vec::new();
         }
-        let visit = self.units_to_visit(exec, w, e, internal);
-        let mut outputs = {
-            let sh = with_caps(pass, &self.far, &self.kinematic, &self.kinematic_woken);
-            let (reports, outputs) = run_bins(
-                exec,
-                &sh,
-                (&self.islands, &visit, &mut self.cost),
-                (&self.skipped, &self.caps),
-                (s, e),
-                internal,
-            );
-            self.note_visits(&reports);
-            outputs
-        };
-        let _after = trace::span("far after");
-        loop {
-            // (Only the last check's evaluations count: a check after a
-            // rerun checks again the stencils of every unit here, which
-            // depends on what runs here.)
-            let mut last = Checked::default();
-            let promote = (self.far).check(w, (s, e), outputs.iter().map(|o| &o.1), &mut last);
-            if promote.is_empty() {
-                checked.add(&last);
-                break;
-            }
-            counts.promoted += promote.len() as u64;
-            let (changed, emptied) = self.promote(exec, &promote, w, s);
-            let _span = trace::span_with("island rerun", "units", changed.len() as u64);
-            counts.reruns += changed.len() as u64;
-            let sh = with_caps(pass, &self.far, &self.kinematic, &self.kinematic_woken);
-            let islands = &self.islands;
-            let caps = &self.caps;
-            let rerun = exec.map(changed.len(), &|k| {
-                let mut island = islands[changed[k] as usize].lock().expect("a unit's lock");
-                let out = island.run_segment(exec, &sh, (s, e), internal);
-                (out, (changed[k], island.report(caps)))
-            });
-            let (rerun, reports): (Vec<_>, Vec<_>) = rerun.into_iter().unzip();
-            self.note_visits(&reports);
-            outputs.retain(|(u, _)| !changed.contains(u) && !emptied.contains(u));
-            for (&u, out) in changed.iter().zip(rerun) {
-                if let Some(out) = out {
-                    self.cost[u as usize] += out.seconds;
-                    outputs.push((u, out));
-                }
+        let _span = trace::span("far promote");
+        self.seg_counts.promoted += promote.len() as u64;
+        self.promote(exec, &promote, w, s, home).moves
+    }
+
+    /// The units visited this segment, run here in parallel: `(unit,
+    /// output)` in unit order.
+    pub(super) fn run<E: Executor>(
+        &mut self,
+        exec: &E,
+        pass: &Pass<'_>,
+        (s, e): (Tick, Tick),
+        internal: bool,
+    ) -> Vec<(u32, SegmentOutput)> {
+        let visit = self.units_to_visit(exec, pass.world, e, internal);
+        let sh = with_caps(pass, &self.far, &self.kinematic, &self.kinematic_woken);
+        let (reports, outputs) = run_bins(
+            exec,
+            &sh,
+            (&self.islands, &visit, &mut self.cost),
+            (&self.skipped, &self.caps),
+            (s, e),
+            internal,
+        );
+        self.note_visits(&reports);
+        outputs
+    }
+
+    /// A segment's check, after every unit ran it: `fast` the far vertices'
+    /// speeds² that broke their caps and `added` their breakpoints
+    /// `(vertex, count)`, over every unit's output (reruns included). With
+    /// nothing to promote, the segment's far-stencil bookkeeping is
+    /// committed and `None` returned; else the promotions, merged (the
+    /// units to run the segment again, then check again).
+    pub(super) fn check<E: Executor>(
+        &mut self,
+        exec: &E,
+        w: &World,
+        (s, e): (Tick, Tick),
+        fast: impl Iterator<Item = (u32, f64)>,
+        added: impl Iterator<Item = (u32, u32)>,
+        home: &[u32],
+    ) -> Option<Merged> {
+        // (Only the last check's evaluations count: a check after a rerun
+        // checks again the stencils of every unit, which depends on what
+        // the reruns gave.)
+        let mut last = Checked::default();
+        let promote = (self.far).check(w, (s, e), fast, added, &mut last);
+        if promote.is_empty() {
+            self.seg_checked.add(&last);
+            self.far.commit();
+            return None;
+        }
+        self.seg_counts.promoted += promote.len() as u64;
+        let merged = self.promote(exec, &promote, w, s, home);
+        self.seg_counts.reruns += merged.changed.len() as u64;
+        Some(merged)
+    }
+
+    /// The new units `changed` that run here, run again over the segment
+    /// from the state at `s`: `(unit, output)`.
+    pub(super) fn rerun<E: Executor>(
+        &mut self,
+        exec: &E,
+        pass: &Pass<'_>,
+        (s, e): (Tick, Tick),
+        internal: bool,
+        changed: &[u32],
+    ) -> Vec<(u32, SegmentOutput)> {
+        let here: Vec<u32> = (changed.iter().copied())
+            .filter(|&u| self.here(u as usize))
+            .collect();
+        let _span = trace::span_with("island rerun", "units", here.len() as u64);
+        let sh = with_caps(pass, &self.far, &self.kinematic, &self.kinematic_woken);
+        let islands = &self.islands;
+        let caps = &self.caps;
+        let rerun = exec.map(here.len(), &|k| {
+            let mut island = islands[here[k] as usize].lock().expect("a unit's lock");
+            let out = island.run_segment(exec, &sh, (s, e), internal);
+            (out, (here[k], island.report(caps)))
+        });
+        let (rerun, reports): (Vec<_>, Vec<_>) = rerun.into_iter().unzip();
+        self.note_visits(&reports);
+        let mut outputs = Vec::new();
+        for (&u, out) in here.iter().zip(rerun) {
+            if let Some(out) = out {
+                self.cost[u as usize] += out.seconds;
+                outputs.push((u, out));
             }
         }
-        self.far.commit();
+        outputs
+    }
+
+    /// A segment's end: one output holding the far stencils' evaluations
+    /// and counts (and at the pass's last segment its largest unit, over
+    /// every rank's units).
+    pub(super) fn finish(&mut self, internal: bool) -> SegmentOutput {
+        let mut counts = std::mem::take(&mut self.seg_counts);
+        let checked = std::mem::take(&mut self.seg_checked);
         if !internal {
             // The pass's last segment: its largest unit.
-            let events = |u: usize| -> u64 {
-                let island = self.islands[u].lock().expect("a unit");
-                island
-                    .members()
-                    .map(|m| self.events_at_depth[m.1 as usize])
-                    .sum()
-            };
             counts.largest = (0..self.islands.len())
                 .filter(|&u| self.live[u])
-                .map(events)
+                .map(|u| self.events_of(u))
                 .max()
                 .unwrap_or(0);
         }
         self.after_internal = internal;
-        outputs.sort_unstable_by_key(|o| o.0);
-        let mut outputs: Vec<SegmentOutput> = outputs.into_iter().map(|o| o.1).collect();
-        outputs.push(SegmentOutput {
+        SegmentOutput {
             evaluations: checked.evaluations,
             min_separation: checked.min_separation,
             far: counts,
             ..Default::default()
-        });
-        outputs
+        }
+    }
+
+    /// Unit `u`'s layer events in the pass.
+    fn events_of(&self, u: usize) -> u64 {
+        let depths: Vec<u32> = match &self.remote.get(u).and_then(Option::as_ref) {
+            Some(spec) => spec.1.iter().map(|m| m.1).collect(),
+            None => (self.islands[u].lock().expect("a unit").members())
+                .map(|m| m.1)
+                .collect(),
+        };
+        depths
+            .iter()
+            .map(|&d| self.events_at_depth[d as usize])
+            .sum()
     }
 
     /// Which live units the segment ending at `e` visits: a unit with a stencil
@@ -278,24 +433,28 @@ impl Units {
     ) -> Vec<bool> {
         let last = if internal { e } else { e.saturating_sub(1) };
         let units = self.islands.len();
+        // (A unit another rank runs is never visited here.)
+        let runs: Vec<bool> = (0..units).map(|u| self.live[u] && self.here(u)).collect();
         let mut visit: Vec<bool> = (0..units)
-            .map(|u| self.live[u] && self.quiet[u].is_none_or(|due| due <= last))
+            .map(|u| runs[u] && self.quiet[u].is_none_or(|due| due <= last))
             .collect();
         if self.after_internal {
             let all = !self.kinematic_woken.is_empty();
             for u in 0..units {
                 let limit = self.most_breakpoints[u] + self.skipped[u] + 1 >= BREAKPOINTS_PER_WAKE;
-                visit[u] |= self.live[u] && (all || limit);
+                visit[u] |= runs[u] && (all || limit);
             }
             // The units of the vertices whose new speed would change their
             // cap, found on the executor (reads only).
             let (of_vertex, caps, seen) = (&self.unit_of_vertex, &self.caps, &visit);
+            let runs = &runs;
             let n = of_vertex.len();
             let broke = exec.map(n.div_ceil(CAP_CHECK_RUN), &|r| {
                 let mut units = Vec::new();
                 for i in r * CAP_CHECK_RUN..((r + 1) * CAP_CHECK_RUN).min(n) {
                     let u = of_vertex[i];
-                    if u != NONE && !seen[u as usize] && units.last() != Some(&u) {
+                    let fresh = u != NONE && runs[u as usize] && !seen[u as usize];
+                    if fresh && units.last() != Some(&u) {
                         let cap = f64::from_bits(caps[i].load(Ordering::Relaxed));
                         if changes_cap(w.v[i], cap) {
                             units.push(u);
@@ -308,7 +467,7 @@ impl Units {
                 visit[u as usize] = true;
             }
             for u in 0..units {
-                if self.live[u] && !visit[u] {
+                if runs[u] && !visit[u] {
                     self.skipped[u] += 1;
                 }
             }
@@ -329,16 +488,19 @@ impl Units {
     /// Promotes the far stencils `fs` at tick `s` (the world holds the
     /// state at `s`): each joins the units holding its dynamic vertices and
     /// its vertices outside every unit; stencils that share a unit or a
-    /// vertex join the same new unit. Returns the new units (each in the
-    /// slot of the lowest unit it merged, or a new slot) and the units
-    /// emptied into them.
+    /// vertex join the same new unit. Each new unit takes the slot of the
+    /// lowest unit it merged (or a new slot) and, spread over ranks, the
+    /// rank holding most of its stencils (the lowest of equals; with none,
+    /// `home` of its lowest vertex): every rank merges alike, and builds
+    /// the new units that run on it.
     fn promote<E: Executor>(
         &mut self,
         exec: &E,
         fs: &[u32],
         w: &World,
         s: Tick,
-    ) -> (Vec<u32>, Vec<u32>) {
+        home: &[u32],
+    ) -> Merged {
         // What each stencil joins: units (`u`) and loose vertices
         // (`1 << 32 | i`), grouped by union over the stencils.
         #[derive(Default)]
@@ -389,10 +551,11 @@ impl Units {
             }
             target.stencils.push(f);
         }
-        let (mut changed, mut emptied) = (Vec::new(), Vec::new());
+        let mut merged = Merged::default();
         // Each group's new unit's vertices and members (merged here, in the
-        // order of `changed`; built on the executor below).
-        let mut built: Vec<Mutex<Option<UnitSpec>>> = Vec::new();
+        // order of `changed`; those that run here built on the executor
+        // below).
+        let mut built: Vec<(u32, Mutex<Option<UnitSpec>>)> = Vec::new();
         for group in groups.into_iter().flatten() {
             let mut units: Vec<u32> = (group.joins.iter())
                 .filter(|&&j| j >> 32 == 0)
@@ -403,6 +566,7 @@ impl Units {
                 .filter(|&&j| j >> 32 == 1)
                 .map(|&j| j as u32)
                 .collect();
+            let rank = self.rank_for(&units, &vertices, home);
             let mut members: Vec<(StencilKey, u32)> = (group.stencils.iter())
                 .map(|&f| {
                     let (key, depth, _) = self.far.stencil(f);
@@ -411,9 +575,13 @@ impl Units {
                 .collect();
             let mut cost = 0.0;
             for &u in &units {
-                let island = std::mem::take(&mut *self.islands[u as usize].lock().expect("a unit"));
-                vertices.extend_from_slice(island.vertices());
-                members.extend(island.members());
+                let (their_vertices, their_members) = self.take(u as usize);
+                if self.spread() && self.rank_of[u as usize] != rank {
+                    let from = self.rank_of[u as usize];
+                    (merged.moves).extend(their_vertices.iter().map(|&i| (i, from, rank)));
+                }
+                vertices.extend(their_vertices);
+                members.extend(their_members);
                 cost += self.cost[u as usize];
             }
             let slot = match units.first() {
@@ -425,13 +593,17 @@ impl Units {
                     self.quiet.push(None);
                     self.most_breakpoints.push(0);
                     self.skipped.push(0);
+                    if self.spread() {
+                        self.rank_of.push(rank);
+                        self.remote.push(None);
+                    }
                     (self.islands.len() - 1) as u32
                 }
             };
             for &u in units.iter().skip(1) {
                 self.live[u as usize] = false;
                 self.cost[u as usize] = 0.0;
-                emptied.push(u);
+                merged.emptied.push(u);
             }
             for &i in &vertices {
                 self.unit_of_vertex[i as usize] = slot;
@@ -441,24 +613,67 @@ impl Units {
             self.quiet[slot as usize] = None;
             self.skipped[slot as usize] = 0;
             self.most_breakpoints[slot as usize] = 0;
-            built.push(Mutex::new(Some((vertices, members))));
-            changed.push(slot);
-        }
-        let kinematic = &self.kinematic;
-        let islands = exec.map(built.len(), &|g| {
-            let (mut vertices, mut members) =
-                (built[g].lock().expect("a group").take()).expect("built once");
             vertices.sort_unstable();
             vertices.dedup();
             members.sort_unstable_by_key(|m| m.0);
+            merged.vertices.extend_from_slice(&vertices);
+            if self.spread() {
+                self.rank_of[slot as usize] = rank;
+            }
+            if self.here(slot as usize) {
+                built.push((slot, Mutex::new(Some((vertices, members)))));
+            } else {
+                self.remote[slot as usize] = Some((vertices, members));
+            }
+            merged.changed.push(slot);
+        }
+        let kinematic = &self.kinematic;
+        let islands = exec.map(built.len(), &|g| {
+            let (vertices, members) =
+                (built[g].1.lock().expect("a group").take()).expect("built once");
             Island::of(vertices, members, w, s, kinematic)
         });
-        for (&slot, island) in changed.iter().zip(islands) {
-            *self.islands[slot as usize].lock().expect("a unit") = island;
+        for ((slot, _), island) in built.iter().zip(islands) {
+            *self.islands[*slot as usize].lock().expect("a unit") = island;
         }
-        changed.sort_unstable();
-        emptied.sort_unstable();
-        (changed, emptied)
+        merged.changed.sort_unstable();
+        merged.emptied.sort_unstable();
+        merged.vertices.sort_unstable();
+        merged
+    }
+
+    /// Unit `u`'s vertices and stencils, taken out of it (it runs here, or
+    /// its spec is kept here).
+    fn take(&mut self, u: usize) -> UnitSpec {
+        if let Some(spec) = self.remote.get_mut(u).and_then(Option::take) {
+            return spec;
+        }
+        let island = std::mem::take(&mut *self.islands[u].lock().expect("a unit"));
+        (island.vertices().to_vec(), island.members().collect())
+    }
+
+    /// The rank a unit merged of `units` and the loose vertices `loose`
+    /// runs on: the rank holding most of their stencils (the lowest of
+    /// equals), or with no unit the home of the lowest loose vertex; this
+    /// rank when the units are not spread.
+    fn rank_for(&self, units: &[u32], loose: &[u32], home: &[u32]) -> u32 {
+        if !self.spread() {
+            return self.me;
+        }
+        let mut weight: BTreeMap<u32, usize> = BTreeMap::new();
+        for &u in units {
+            let u = u as usize;
+            let stencils = match self.remote.get(u).and_then(Option::as_ref) {
+                Some(spec) => spec.1.len(),
+                None => self.islands[u].lock().expect("a unit").stencils(),
+            };
+            *weight.entry(self.rank_of[u]).or_default() += stencils;
+        }
+        let heaviest = (weight.iter()).max_by(|a, b| a.1.cmp(b.1).then(b.0.cmp(a.0)));
+        match heaviest {
+            Some((&rank, _)) => rank,
+            None => home[*loose.iter().min().expect("a far stencil's vertex") as usize],
+        }
     }
 }
 
