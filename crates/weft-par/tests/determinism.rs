@@ -245,7 +245,7 @@ fn split_islands_keep_the_bits_on_every_executor() {
         threads.stats, reference.stats,
         "2 threads, split: statistics"
     );
-    for (ranks, threads) in [(2, 1), (3, 2)] {
+    for (ranks, threads) in [(2, 1), (3, 2), (4, 1)] {
         let local = |_| Threads::new(threads).unwrap();
         let outcomes = in_process(ranks, local, |exec| run_set(exec, 4, &split));
         for (rank, o) in outcomes.iter().enumerate() {
@@ -434,6 +434,59 @@ fn partitions_placed_again_between_windows_keep_the_bits() {
             for (a, b) in o.stats.iter().zip(&reference.stats) {
                 assert_eq!(a, b, "{label}: statistics of window {}", b.window);
             }
+        }
+    }
+}
+
+/// With `contact.split_islands` over ranks the twister's units are spread
+/// over the ranks and its far stencils watched where their units run: a
+/// promotion merges units of two ranks, and the merged unit is built where
+/// it runs once its vertices' states arrived there (built before, from a
+/// stale velocity, a stencil slept through a kick), from the loose
+/// vertices' owners too (the rank watching a far stencil need not hold
+/// them). Every window's state hash and statistics are one process's at 2,
+/// 3 and 4 ranks.
+#[test]
+fn twister_split_over_ranks_keeps_the_bits() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/twister.toml");
+    let scene = load_scene(
+        &path,
+        &[
+            "size=600".to_string(),
+            "time.steps_per_window=20".into(),
+            "partitions=12".into(),
+            "contact.split_islands=true".into(),
+        ],
+    )
+    .unwrap();
+    fn windows<E: Executor>(
+        scene: &weft_io::scene::Scene,
+        exec: E,
+    ) -> (Vec<(String, weft_sim::WindowStats)>, u64) {
+        let world = weft_par::build_world(&scene.world).unwrap();
+        let mut e = Engine::new(world, exec).unwrap();
+        let mut out = Vec::new();
+        for _ in 0..4 {
+            let mut s = e.step_window().unwrap();
+            (s.wall_seconds, s.stage_seconds) = (0.0, Default::default());
+            out.push((e.state_hash(), s));
+        }
+        (out, e.moved_between_ranks)
+    }
+    let (reference, _) = windows(&scene, Serial);
+    let promoted: u64 = reference.iter().map(|w| w.1.far_promoted).sum();
+    assert!(promoted > 1000, "{promoted} promotions");
+    for ranks in [2, 3, 4] {
+        let outcomes = in_process(ranks, |_| Serial, |exec| windows(&scene, exec));
+        for (rank, (got, moved)) in outcomes.iter().enumerate() {
+            for (k, (a, b)) in got.iter().zip(&reference).enumerate() {
+                assert_eq!(a.0, b.0, "rank {rank} of {ranks}: window {k}'s hash");
+                assert_eq!(a.1, b.1, "rank {rank} of {ranks}: window {k}'s statistics");
+            }
+            assert!(
+                *moved > 0,
+                "rank {rank} of {ranks}: no unit moved between ranks"
+            );
         }
     }
 }

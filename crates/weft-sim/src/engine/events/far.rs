@@ -79,12 +79,13 @@ const RENEW_RUN: usize = 32;
 /// speed caps.
 #[derive(Debug, Default)]
 pub(super) struct FarSet {
-    /// Per far stencil of the packs this rank runs: its key and depth, its
-    /// pack (the island of the whole active set it lies in), the tick its
-    /// certificate ends (exclusive) and whether it was promoted.
+    /// Per far stencil this rank watches: its key and depth, its tag (the
+    /// caller's: over ranks with the units spread, its index among every
+    /// rank's far stencils), the tick its certificate ends (exclusive) and
+    /// whether it was promoted.
     key: Vec<StencilKey>,
     depth: Vec<u32>,
-    pack: Vec<u32>,
+    tag: Vec<u32>,
     until: Vec<Tick>,
     promoted: Vec<bool>,
     /// Vertex → far stencils (CSR over every vertex).
@@ -332,7 +333,7 @@ impl FarSet {
             let f = set.key.len() as u32;
             set.key.push(*key);
             set.depth.push(*depth);
-            set.pack.push(*pack);
+            set.tag.push(*pack);
             set.until.push(until);
             set.promoted.push(false);
             if until < pass_end {
@@ -382,10 +383,10 @@ impl FarSet {
         &self.cap
     }
 
-    /// Far stencil `f`'s key and depth (its layers when promoted) and pack.
+    /// Far stencil `f`'s key and depth (its layers when promoted) and tag.
     pub(super) fn stencil(&self, f: u32) -> (StencilKey, u32, u32) {
         let f = f as usize;
-        (self.key[f], self.depth[f], self.pack[f])
+        (self.key[f], self.depth[f], self.tag[f])
     }
 
     /// Whether a far stencil watches vertex `i`.

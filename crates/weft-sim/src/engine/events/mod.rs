@@ -41,7 +41,7 @@ use crate::trace;
 use crate::world::World;
 use far::{may_be_far, Checked, FarSet};
 use island::{Pass, SegmentOutput};
-use units::{FarCounts, UnitSpec, Units};
+use units::{FarCounts, Spread, UnitSpec, Units};
 
 /// Tasks per thread that the islands of a segment are dealt to on one
 /// memory (on the twister 50k with 2 threads, the island stage reached 90 %
@@ -327,6 +327,78 @@ fn largest_first(costs: &[f64]) -> Vec<u32> {
 /// ([`place_near_home`]).
 const HOME_SLACK: f64 = 0.1;
 
+/// Over ranks with `contact.split_islands`, the units spread: each unit
+/// placed near its home by its stencils, and each far stencil watched by
+/// the rank of the unit of its lowest dynamic vertex in a unit (else by
+/// its vertices' home). Returns the far stencils this rank watches (each
+/// tagged with its index in `far_all`) and the spread.
+fn spread_units<E: crate::executor::Executor>(
+    exec: &E,
+    w: &World,
+    share: &RankShare,
+    specs: &[UnitSpec],
+    far_all: Vec<(StencilKey, u32)>,
+    pass: (Tick, Tick, Tick),
+) -> (FarSet, Spread) {
+    let cost: Vec<f64> = specs.iter().map(|s| s.1.len() as f64).collect();
+    let home: Vec<u32> = (specs.iter()).map(|s| home_rank(share, &s.0)).collect();
+    let rank_of = place_near_home(&cost, &home, share.ranks);
+    let mut unit_of = vec![u32::MAX; w.num_vertices()];
+    for (u, spec) in specs.iter().enumerate() {
+        spec.0.iter().for_each(|&i| unit_of[i as usize] = u as u32);
+    }
+    let watcher: Vec<u32> = (far_all.iter())
+        .map(|(key, _)| {
+            let dynamic: Vec<u32> = (key.v.iter().copied())
+                .filter(|&i| w.inv_mass[i as usize] > 0.0)
+                .collect();
+            let in_units = dynamic.iter().filter(|&&i| unit_of[i as usize] != u32::MAX);
+            match in_units.min() {
+                Some(&i) => rank_of[unit_of[i as usize] as usize],
+                None => home_rank(share, &dynamic),
+            }
+        })
+        .collect();
+    let me = share.rank as u32;
+    let watched: Vec<(StencilKey, u32, u32)> = (far_all.iter().zip(&watcher).enumerate())
+        .filter(|(_, (_, &r))| r == me)
+        .map(|(g, (&(key, depth), _))| (key, depth, g as u32))
+        .collect();
+    // (Certified again: the same certificates, from the same caps.)
+    let (far, is_far) = FarSet::new(exec, w, &watched, &|_| true, pass, &mut Checked::default());
+    debug_assert!(is_far.iter().all(|&f| f), "a far stencil certified alike");
+    let spread = Spread {
+        me,
+        rank_of,
+        far_all,
+        watcher,
+    };
+    (far, spread)
+}
+
+impl Spread {
+    /// Every vertex read over the pass by a rank other than its owner's
+    /// partitions, with the rank (`u32::MAX`: every rank): the units'
+    /// stencils' vertices on the unit's rank, the far stencils' on their
+    /// watcher, and every kinematic vertex of an active stencil everywhere
+    /// (a merged unit may come to read any).
+    fn reads<'a>(
+        &'a self,
+        specs: &'a [UnitSpec],
+        active: &'a [(StencilKey, u32)],
+        w: &'a World,
+    ) -> impl Iterator<Item = (u32, u32)> + 'a {
+        let units = (specs.iter().zip(&self.rank_of))
+            .flat_map(|(spec, &r)| spec.1.iter().flat_map(move |m| m.0.v.map(|i| (i, r))));
+        let far =
+            (self.far_all.iter().zip(&self.watcher)).flat_map(|(f, &r)| f.0.v.map(|i| (i, r)));
+        let kinematic = (active.iter().flat_map(|a| a.0.v))
+            .filter(|&i| w.inv_mass[i as usize] == 0.0)
+            .map(|i| (i, u32::MAX));
+        units.chain(far).chain(kinematic)
+    }
+}
+
 /// The rank owning most of `vertices` under the placement by size
 /// (`reference_owner`: not moved by the partitions placed by load), the
 /// lowest of equals: the home of a pack or unit of them.
@@ -601,9 +673,6 @@ impl<E: Executor> Engine<E> {
             let mut near = vec![true; active.len()];
             for (&a, &f) in candidates.iter().zip(&is_far) {
                 near[a] = !f;
-                if f && spread {
-                    reads.extend(active[a].0.v.map(|i| (i, u32::MAX)));
-                }
             }
             let near: Vec<usize> = (0..active.len())
                 .filter(|&a| near[a] && mine(pack_of[a]))
@@ -621,20 +690,19 @@ impl<E: Executor> Engine<E> {
                     (units.vertices_of(u).to_vec(), members)
                 })
                 .collect::<Vec<UnitSpec>>();
-            let rank_of = self.share.as_ref().filter(|_| spread).map(|share| {
-                let cost: Vec<f64> = specs.iter().map(|s| s.1.len() as f64).collect();
-                let home: Vec<u32> = (specs.iter()).map(|s| home_rank(share, &s.0)).collect();
-                let rank_of = place_near_home(&cost, &home, share.ranks);
-                for (spec, &r) in specs.iter().zip(&rank_of) {
-                    reads.extend(spec.1.iter().flat_map(|m| m.0.v.map(|i| (i, r))));
+            let (far, spread) = match self.share.as_ref().filter(|_| spread) {
+                None => (far, None),
+                Some(share) => {
+                    let far_all: Vec<(StencilKey, u32)> = (candidates.iter().zip(&is_far))
+                        .filter(|p| *p.1)
+                        .map(|(&a, _)| active[a])
+                        .collect();
+                    let (far, spread) = spread_units(&self.exec, w, share, &specs, far_all, pass);
+                    reads.extend(spread.reads(&specs, active, w));
+                    (far, Some(spread))
                 }
-                // The kinematic vertices every unit may come to read.
-                let kinematic =
-                    (active.iter().flat_map(|a| a.0.v)).filter(|&i| w.inv_mass[i as usize] == 0.0);
-                reads.extend(kinematic.map(|i| (i, u32::MAX)));
-                (me, rank_of)
-            });
-            (specs, far, rank_of)
+            };
+            (specs, far, spread)
         } else {
             let specs = (0..packs.len())
                 .filter(|&k| mine(k as u32))
@@ -773,9 +841,13 @@ impl<E: Executor> Engine<E> {
         let cpu = (ranks > 1).then(|| self.exec.work_cpu_seconds());
         let spread = self.ws.units.spread();
         if spread {
-            let home = &self.share.as_ref().expect("over ranks").reference_owner;
-            let moves = (self.ws.units).before(&self.exec, &self.world, (s, e), home);
+            let (promote, checked) = (self.ws.units).renew(&self.exec, &self.world, (s, e));
+            let (promote, checked) = self.agree(promote, checked)?;
+            let share = self.share.as_ref().expect("over ranks");
+            let homes = (&share.reference_owner[..], &share.owner[..]);
+            let moves = (self.ws.units).promote_agreed(&promote, checked, &self.world, homes);
             self.migrate(&moves)?;
+            (self.ws.units).build(&self.exec, &self.world, s);
         }
         let pass = Pass {
             world: &self.world,
@@ -886,18 +958,22 @@ impl<E: Executor> Engine<E> {
         let _span = trace::span("far after");
         let me = self.exec.rank();
         loop {
-            let merged = {
+            let (promote, last) = {
                 let fast = (own.iter().map(|o| &o.1).chain(theirs.iter()))
                     .flat_map(|o| o.fast.iter().copied());
                 let here = (own.iter()).flat_map(|o| o.1.breakpoints.iter().map(|b| (b.0, 1)));
                 let added = here.chain(theirs.iter().flat_map(|o| o.far_added.iter().copied()));
-                let home = &self.share.as_ref().expect("over ranks").reference_owner;
-                (self.ws.units).check(&self.exec, &self.world, (s, e), fast, added, home)
+                (self.ws.units).check(&self.world, (s, e), fast, added)
             };
+            let (promote, last) = self.agree(promote, last)?;
+            let share = self.share.as_ref().expect("over ranks");
+            let homes = (&share.reference_owner[..], &share.owner[..]);
+            let merged = (self.ws.units).check_agreed(&promote, last, &self.world, homes);
             let Some(merged) = merged else {
                 break;
             };
             self.migrate(&merged.moves)?;
+            (self.ws.units).build(&self.exec, &self.world, s);
             let pass = Pass {
                 world: &self.world,
                 layer_consts,
@@ -928,6 +1004,39 @@ impl<E: Executor> Engine<E> {
         let far = self.ws.units.finish(internal);
         totals.add(&SegmentTotals::of(std::iter::once(&far)));
         Ok(totals)
+    }
+
+    /// **Collective** (an all-gather), over ranks with the units spread:
+    /// the far stencils each rank found to promote (`promote`, by their
+    /// index among every rank's) and what finding them evaluated
+    /// (`checked`), agreed: every rank's promotions, ascending (each far
+    /// stencil has one watcher), and the evaluations summed.
+    fn agree(&self, promote: Vec<u32>, checked: Checked) -> Result<(Vec<u32>, Checked), SimError> {
+        let bits = f64::from_bits;
+        let head = DVec3::new(bits(checked.evaluations), checked.min_separation, 0.0);
+        let mine: Vec<DVec3> = std::iter::once(head)
+            .chain(
+                promote
+                    .iter()
+                    .map(|&f| DVec3::new(bits(f.into()), 0.0, 0.0)),
+            )
+            .collect();
+        let all = self.exec.all_gather_vectors(&mine)?;
+        let (mut agreed, mut total) = (Vec::new(), Checked::default());
+        for part in &all {
+            let Some((head, ids)) = part.split_first() else {
+                return Err(SimError::Ranks(crate::executor::CommError(
+                    "an empty part of the far stencils' agreement".into(),
+                )));
+            };
+            total.add(&Checked {
+                evaluations: head.x.to_bits(),
+                min_separation: head.y,
+            });
+            agreed.extend(ids.iter().map(|c| c.x.to_bits() as u32));
+        }
+        agreed.sort_unstable();
+        Ok((agreed, total))
     }
 
     /// Over ranks with the units spread: the vertices of `moves` whose unit
@@ -1078,38 +1187,52 @@ impl<E: Executor> Engine<E> {
         let mut parts: Vec<SegmentOutput> = vec![SegmentOutput::default(); share.ranks];
         let units = &self.ws.units;
         let spread = units.spread();
-        let others = || (0..share.ranks as u32).filter(|&r| r != me);
+        let mut to: Vec<u32> = Vec::new();
         for out in outputs {
             for m in &out.moved {
                 let i = m.0 as usize;
-                if spread && units.watches(m.0) {
-                    // (every rank watches every far stencil)
-                    others().for_each(|r| parts[r as usize].moved.push(*m));
-                    continue;
+                to.clear();
+                to.push(share.owner[i]);
+                to.extend_from_slice(share.readers(i));
+                if spread {
+                    // (and the ranks watching a far stencil of it)
+                    to.extend_from_slice(units.watchers(m.0));
+                    to.sort_unstable();
+                    to.dedup();
                 }
-                let owner = share.owner[i];
-                let readers = share.readers(i).iter().copied();
-                for r in std::iter::once(owner).chain(readers) {
-                    if r != me {
-                        parts[r as usize].moved.push(*m);
-                    }
+                for &r in to.iter().filter(|&&r| r != me) {
+                    parts[r as usize].moved.push(*m);
                 }
             }
             if spread {
-                for r in others() {
-                    parts[r as usize].fast.extend_from_slice(&out.fast);
-                }
-                // Each watched vertex's breakpoints, counted (a vertex's
-                // are consecutive: one island's, in time order).
+                // The largest speed² of each far vertex, and its
+                // breakpoints counted (a vertex's are consecutive: one
+                // island's, in time order), to the ranks watching it.
+                let mut fast = out.fast.clone();
+                fast.sort_unstable_by_key(|f| f.0);
+                fast.dedup_by(|later, first| {
+                    let same = later.0 == first.0;
+                    if same {
+                        first.1 = first.1.max(later.1);
+                    }
+                    same
+                });
                 let mut added: Vec<(u32, u32)> = Vec::new();
-                for b in out.breakpoints.iter().filter(|b| units.watches(b.0)) {
+                for b in out.breakpoints.iter() {
                     match added.last_mut() {
                         Some(last) if last.0 == b.0 => last.1 += 1,
                         _ => added.push((b.0, 1)),
                     }
                 }
-                for r in others() {
-                    parts[r as usize].far_added.extend_from_slice(&added);
+                for &(i, speed2) in &fast {
+                    for &r in units.watchers(i).iter().filter(|&&r| r != me) {
+                        parts[r as usize].fast.push((i, speed2));
+                    }
+                }
+                for &(i, count) in &added {
+                    for &r in units.watchers(i).iter().filter(|&&r| r != me) {
+                        parts[r as usize].far_added.push((i, count));
+                    }
                 }
             }
             for b in &out.breakpoints {

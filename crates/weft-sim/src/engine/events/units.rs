@@ -89,14 +89,44 @@ pub(super) struct Units {
     /// the rank running it (every rank agrees), and the spec of each unit
     /// another rank runs (what a merge here would build it from). Empty:
     /// every unit runs here.
+    spread: bool,
     rank_of: Vec<u32>,
     remote: Vec<Option<UnitSpec>>,
     me: u32,
+    /// Spread over ranks: every rank's far stencils (key, depth; a
+    /// promotion names one by its index here), and per vertex the ranks
+    /// watching a far stencil of it (CSR) — where its new states, speeds
+    /// and breakpoints go. `far` holds the far stencils this rank watches.
+    far_all: Vec<(StencilKey, u32)>,
+    watcher_start: Vec<u32>,
+    watcher_ranks: Vec<u32>,
+    /// Spread over ranks, per vertex: 0 for a vertex of a far stencil
+    /// (every new speed of it is reported, for the ranks watching it to
+    /// compare with their caps), `+inf` for the others.
+    report_cap: Vec<f64>,
     /// The segment's far-stencil counts and evaluations so far
     /// (`Units::before` to `Units::finish`).
     seg_counts: FarCounts,
     seg_checked: Checked,
+    /// The new units of the last promotion that run here, to build
+    /// ([`Units::build`]).
+    to_build: Vec<(u32, Mutex<Option<UnitSpec>>)>,
 }
+
+/// How the units are spread over ranks: this rank, each unit's rank, and
+/// every rank's far stencils (key, depth) with the rank watching each.
+#[derive(Debug, Default)]
+pub(super) struct Spread {
+    pub me: u32,
+    pub rank_of: Vec<u32>,
+    pub far_all: Vec<(StencilKey, u32)>,
+    pub watcher: Vec<u32>,
+}
+
+/// Over ranks with the units spread, per vertex: its home (where a unit
+/// of loose vertices is placed: the owner under the placement by size) and
+/// its owner (where its state is current). Empty on one memory.
+pub(super) type Homes<'a> = (&'a [u32], &'a [u32]);
 
 /// A vertex whose unit moved to another rank: `(vertex, from, to)`.
 pub(super) type Move = (u32, u32, u32);
@@ -128,10 +158,36 @@ impl Units {
         checked: Checked,
         t0: Tick,
         events_at_depth: Vec<u64>,
-        spread: Option<(u32, Vec<u32>)>,
+        spread: Option<Spread>,
     ) -> Self {
-        let (me, rank_of) = spread.unwrap_or_default();
-        let here = |u: usize| rank_of.is_empty() || rank_of[u] == me;
+        let spreads = spread.is_some();
+        let Spread {
+            me,
+            rank_of,
+            far_all,
+            watcher,
+        } = spread.unwrap_or_default();
+        // Per vertex, the ranks watching a far stencil of it (ascending).
+        let n = w.num_vertices();
+        let mut pairs: Vec<(u32, u32)> = (far_all.iter().zip(&watcher))
+            .flat_map(|(f, &r)| f.0.v.map(|i| (i, r)))
+            .collect();
+        pairs.sort_unstable();
+        pairs.dedup();
+        let mut watcher_start = vec![0u32; if far_all.is_empty() { 0 } else { n + 1 }];
+        let mut report_cap = Vec::new();
+        if !far_all.is_empty() {
+            report_cap = vec![f64::INFINITY; n];
+            for &(i, _) in &pairs {
+                watcher_start[i as usize + 1] += 1;
+                report_cap[i as usize] = 0.0;
+            }
+            for i in 0..n {
+                watcher_start[i + 1] += watcher_start[i];
+            }
+        }
+        let watcher_ranks: Vec<u32> = pairs.into_iter().map(|p| p.1).collect();
+        let here = |u: usize| !spreads || rank_of[u] == me;
         let mut unit_of_vertex = vec![NONE; w.num_vertices()];
         for (u, (vertices, _)) in specs.iter().enumerate() {
             for &i in vertices {
@@ -154,7 +210,7 @@ impl Units {
         let mut remote: Vec<Option<UnitSpec>> = Vec::new();
         let mut specs: Vec<Mutex<Option<UnitSpec>>> =
             specs.into_iter().map(|s| Mutex::new(Some(s))).collect();
-        if !rank_of.is_empty() {
+        if spreads {
             remote = (specs.iter_mut().enumerate())
                 .map(|(u, spec)| {
                     (!here(u))
@@ -174,7 +230,8 @@ impl Units {
         );
         let pending = (
             FarCounts {
-                far: far.len() as u64,
+                // (spread over ranks: every rank's)
+                far: far.len().max(far_all.len()) as u64,
                 ..Default::default()
             },
             checked,
@@ -194,28 +251,48 @@ impl Units {
             most_breakpoints: vec![0; n_units],
             skipped: vec![0; n_units],
             caps: (0..w.num_vertices()).map(|_| AtomicU64::new(0)).collect(),
+            spread: spreads,
             rank_of,
             remote,
             me,
+            far_all,
+            watcher_start,
+            watcher_ranks,
+            report_cap,
             seg_counts: FarCounts::default(),
             seg_checked: Checked::default(),
+            to_build: Vec::new(),
         }
     }
 
     /// Whether unit `u` runs on this rank.
     fn here(&self, u: usize) -> bool {
-        self.rank_of.is_empty() || self.rank_of[u] == self.me
+        !self.spread || self.rank_of[u] == self.me
     }
 
-    /// Whether the units are spread over ranks (each rank then watches
-    /// every far stencil: [`Units::watches`]).
+    /// Whether the units are spread over ranks.
     pub(super) fn spread(&self) -> bool {
-        !self.rank_of.is_empty()
+        self.spread
     }
 
-    /// Whether a far stencil watches vertex `i`.
-    pub(super) fn watches(&self, i: u32) -> bool {
-        self.far.watches(i as usize)
+    /// Spread over ranks: the ranks watching a far stencil of vertex `i`.
+    pub(super) fn watchers(&self, i: u32) -> &[u32] {
+        match self.watcher_start.get(i as usize..i as usize + 2) {
+            Some(&[a, b]) => &self.watcher_ranks[a as usize..b as usize],
+            _ => &[],
+        }
+    }
+
+    /// Far stencil `f`'s key and depth (spread over ranks: `f` among every
+    /// rank's far stencils).
+    fn far_stencil(&self, f: u32) -> (StencilKey, u32) {
+        match self.far_all.get(f as usize) {
+            Some(&stencil) if self.spread() => stencil,
+            _ => {
+                let (key, depth, _) = self.far.stencil(f);
+                (key, depth)
+            }
+        }
     }
 
     /// Every unit's segment `[s, e)` (and its kicks at the internal tick `e`
@@ -234,16 +311,20 @@ impl Units {
         internal: bool,
     ) -> Vec<SegmentOutput> {
         let w = pass.world;
-        let moves = self.before(exec, w, (s, e), &[]);
+        let (promote, checked) = self.renew(exec, w, (s, e));
+        let moves = self.promote_agreed(&promote, checked, w, (&[], &[]));
         debug_assert!(moves.is_empty(), "every unit runs here");
+        self.build(exec, w, s);
         let mut outputs = self.run(exec, pass, (s, e), internal);
         let _after = trace::span("far after");
         loop {
             let fast = outputs.iter().flat_map(|o| o.1.fast.iter().copied());
             let added = (outputs.iter()).flat_map(|o| o.1.breakpoints.iter().map(|b| (b.0, 1)));
-            let Some(merged) = self.check(exec, w, (s, e), fast, added, &[]) else {
+            let (promote, last) = self.check(w, (s, e), fast, added);
+            let Some(merged) = self.check_agreed(&promote, last, w, (&[], &[])) else {
                 break;
             };
+            self.build(exec, w, s);
             let rerun = self.rerun(exec, pass, (s, e), internal, &merged.changed);
             let gone = |u: &u32| merged.changed.contains(u) || merged.emptied.contains(u);
             outputs.retain(|(u, _)| !gone(u));
@@ -257,35 +338,57 @@ impl Units {
 
     /// A segment's first step, at its start `s` (the world holds the state
     /// at `s`): the kinematic vertices' caps shown the internal tick's
-    /// velocities, the far stencils certified again, and those that cannot
-    /// be promoted (`home`: over ranks, the rank a unit of loose vertices
-    /// goes to). Returns the vertices whose unit now runs on another rank.
-    pub(super) fn before<E: Executor>(
+    /// velocities and the far stencils this rank watches certified again.
+    /// Returns those that cannot be, to promote (spread over ranks: by
+    /// their index among every rank's far stencils), and what certifying
+    /// evaluated.
+    pub(super) fn renew<E: Executor>(
         &mut self,
         exec: &E,
         w: &World,
         (s, e): (Tick, Tick),
-        home: &[u32],
-    ) -> Vec<Move> {
+    ) -> (Vec<u32>, Checked) {
         self.kinematic_woken.clear();
         if self.after_internal {
             // The internal tick gave the kinematic vertices new velocities.
             (self.kinematic).observe(|i| w.v[i as usize], &mut self.kinematic_woken);
         }
-        let (counts, mut checked) = std::mem::take(&mut self.pending);
+        // (The pass start's counts: the same on every rank.)
+        let (counts, checked) = std::mem::take(&mut self.pending);
         self.seg_counts = counts;
-        let before = trace::span("far before");
-        let promote = (self.far).before_segment(exec, w, (s, e), self.after_internal, &mut checked);
         self.seg_checked = checked;
-        drop(before);
-        if promote.is_empty() {
+        let _span = trace::span("far before");
+        let mut renewed = Checked::default();
+        let promote = (self.far).before_segment(exec, w, (s, e), self.after_internal, &mut renewed);
+        (self.global_ids(promote), renewed)
+    }
+
+    /// `local` far stencils as the ids promotions name them.
+    fn global_ids(&self, local: Vec<u32>) -> Vec<u32> {
+        match self.spread() {
+            true => local.into_iter().map(|f| self.far.stencil(f).2).collect(),
+            false => local,
+        }
+    }
+
+    /// The promotions of a segment's start, agreed by every rank (`fs`,
+    /// ascending; `checked`: what certifying evaluated over every rank),
+    /// merged. Returns the vertices whose unit now runs on another rank.
+    pub(super) fn promote_agreed(
+        &mut self,
+        fs: &[u32],
+        checked: Checked,
+        w: &World,
+        homes: Homes<'_>,
+    ) -> Vec<Move> {
+        self.seg_checked.add(&checked);
+        if fs.is_empty() {
             return Vec::new();
         }
         let _span = trace::span("far promote");
-        self.seg_counts.promoted += promote.len() as u64;
-        self.promote(exec, &promote, w, s, home).moves
+        self.seg_counts.promoted += fs.len() as u64;
+        self.promote(fs, w, homes).moves
     }
-
     /// The units visited this segment, run here in parallel: `(unit,
     /// output)` in unit order.
     pub(super) fn run<E: Executor>(
@@ -296,7 +399,12 @@ impl Units {
         internal: bool,
     ) -> Vec<(u32, SegmentOutput)> {
         let visit = self.units_to_visit(exec, pass.world, e, internal);
-        let sh = with_caps(pass, &self.far, &self.kinematic, &self.kinematic_woken);
+        let sh = with_caps(
+            pass,
+            (&self.far, &self.report_cap),
+            &self.kinematic,
+            &self.kinematic_woken,
+        );
         let (reports, outputs) = run_bins(
             exec,
             &sh,
@@ -310,32 +418,43 @@ impl Units {
     }
 
     /// A segment's check, after every unit ran it: `fast` the far vertices'
-    /// speeds² that broke their caps and `added` their breakpoints
-    /// `(vertex, count)`, over every unit's output (reruns included). With
-    /// nothing to promote, the segment's far-stencil bookkeeping is
-    /// committed and `None` returned; else the promotions, merged (the
-    /// units to run the segment again, then check again).
-    pub(super) fn check<E: Executor>(
+    /// speeds² (at least those that broke their caps) and `added` their
+    /// breakpoints `(vertex, count)`, over every unit's output (reruns
+    /// included). Returns the far stencils this rank watches that must be
+    /// promoted (as [`Units::renew`]) and what the check evaluated.
+    pub(super) fn check(
         &mut self,
-        exec: &E,
         w: &World,
         (s, e): (Tick, Tick),
         fast: impl Iterator<Item = (u32, f64)>,
         added: impl Iterator<Item = (u32, u32)>,
-        home: &[u32],
-    ) -> Option<Merged> {
-        // (Only the last check's evaluations count: a check after a rerun
-        // checks again the stencils of every unit, which depends on what
-        // the reruns gave.)
+    ) -> (Vec<u32>, Checked) {
         let mut last = Checked::default();
         let promote = (self.far).check(w, (s, e), fast, added, &mut last);
-        if promote.is_empty() {
+        (self.global_ids(promote), last)
+    }
+
+    /// A check's promotions agreed by every rank (`fs`, ascending; `last`:
+    /// what the check evaluated over every rank). With none, the segment's
+    /// far-stencil bookkeeping is committed and `None` returned (only the
+    /// last check's evaluations count: a check after a rerun checks again
+    /// the stencils of every unit, which depends on what the reruns gave);
+    /// else they are merged (the new units to run the segment again, then
+    /// to check again).
+    pub(super) fn check_agreed(
+        &mut self,
+        fs: &[u32],
+        last: Checked,
+        w: &World,
+        homes: Homes<'_>,
+    ) -> Option<Merged> {
+        if fs.is_empty() {
             self.seg_checked.add(&last);
             self.far.commit();
             return None;
         }
-        self.seg_counts.promoted += promote.len() as u64;
-        let merged = self.promote(exec, &promote, w, s, home);
+        self.seg_counts.promoted += fs.len() as u64;
+        let merged = self.promote(fs, w, homes);
         self.seg_counts.reruns += merged.changed.len() as u64;
         Some(merged)
     }
@@ -354,7 +473,12 @@ impl Units {
             .filter(|&u| self.here(u as usize))
             .collect();
         let _span = trace::span_with("island rerun", "units", here.len() as u64);
-        let sh = with_caps(pass, &self.far, &self.kinematic, &self.kinematic_woken);
+        let sh = with_caps(
+            pass,
+            (&self.far, &self.report_cap),
+            &self.kinematic,
+            &self.kinematic_woken,
+        );
         let islands = &self.islands;
         let caps = &self.caps;
         let rerun = exec.map(here.len(), &|k| {
@@ -493,14 +617,7 @@ impl Units {
     /// rank holding most of its stencils (the lowest of equals; with none,
     /// `home` of its lowest vertex): every rank merges alike, and builds
     /// the new units that run on it.
-    fn promote<E: Executor>(
-        &mut self,
-        exec: &E,
-        fs: &[u32],
-        w: &World,
-        s: Tick,
-        home: &[u32],
-    ) -> Merged {
+    fn promote(&mut self, fs: &[u32], w: &World, homes: Homes<'_>) -> Merged {
         // What each stencil joins: units (`u`) and loose vertices
         // (`1 << 32 | i`), grouped by union over the stencils.
         #[derive(Default)]
@@ -511,7 +628,7 @@ impl Units {
         let mut group_of: BTreeMap<u64, usize> = BTreeMap::new();
         let mut groups: Vec<Option<Group>> = Vec::new();
         for &f in fs {
-            let (key, _, _) = self.far.stencil(f);
+            let (key, _) = self.far_stencil(f);
             let mut joins: Vec<u64> = (key.v.iter())
                 .filter(|&&i| w.inv_mass[i as usize] > 0.0)
                 .map(|&i| match self.unit_of_vertex[i as usize] {
@@ -566,12 +683,16 @@ impl Units {
                 .filter(|&&j| j >> 32 == 1)
                 .map(|&j| j as u32)
                 .collect();
-            let rank = self.rank_for(&units, &vertices, home);
+            let rank = self.rank_for(&units, &vertices, homes.0);
+            // (A loose vertex's state is current on its owner.)
+            for &i in vertices.iter().filter(|_| self.spread()) {
+                let owner = homes.1[i as usize];
+                if owner != rank {
+                    merged.moves.push((i, owner, rank));
+                }
+            }
             let mut members: Vec<(StencilKey, u32)> = (group.stencils.iter())
-                .map(|&f| {
-                    let (key, depth, _) = self.far.stencil(f);
-                    (key, depth)
-                })
+                .map(|&f| self.far_stencil(f))
                 .collect();
             let mut cost = 0.0;
             for &u in &units {
@@ -627,6 +748,18 @@ impl Units {
             }
             merged.changed.push(slot);
         }
+        self.to_build = built;
+        merged.changed.sort_unstable();
+        merged.emptied.sort_unstable();
+        merged.vertices.sort_unstable();
+        merged
+    }
+
+    /// Builds the new units of the last promotion that run here, from the
+    /// world's state at `s` (over ranks, once the vertices that moved here
+    /// have arrived: a unit reads its vertices' velocities when built).
+    pub(super) fn build<E: Executor>(&mut self, exec: &E, w: &World, s: Tick) {
+        let built = std::mem::take(&mut self.to_build);
         let kinematic = &self.kinematic;
         let islands = exec.map(built.len(), &|g| {
             let (vertices, members) =
@@ -636,10 +769,6 @@ impl Units {
         for ((slot, _), island) in built.iter().zip(islands) {
             *self.islands[*slot as usize].lock().expect("a unit") = island;
         }
-        merged.changed.sort_unstable();
-        merged.emptied.sort_unstable();
-        merged.vertices.sort_unstable();
-        merged
     }
 
     /// Unit `u`'s vertices and stencils, taken out of it (it runs here, or
@@ -680,15 +809,21 @@ impl Units {
 /// The cost of a unit whose last segment was idle.
 const IDLE_SECONDS: f64 = 1e-7;
 
-/// What the units read: `pass` with the far stencils' speed caps and the
+/// What the units read: `pass` with the far stencils' speed caps (spread
+/// over ranks, `report_cap`: every far vertex's speeds reported) and the
 /// kinematic vertices' shared caps.
 fn with_caps<'a>(
     pass: &Pass<'a>,
-    far: &'a FarSet,
+    (far, report_cap): (&'a FarSet, &'a [f64]),
     kinematic: &'a SharedCaps,
     woken: &'a [u32],
 ) -> Shared<'a> {
-    Shared::new(pass, far.caps(), kinematic.caps(), woken)
+    let far_cap = if report_cap.is_empty() {
+        far.caps()
+    } else {
+        report_cap
+    };
+    Shared::new(pass, far_cap, kinematic.caps(), woken)
 }
 
 /// The live units' segment `[s, e)` (and their kicks at the internal tick
