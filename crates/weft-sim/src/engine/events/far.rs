@@ -281,12 +281,14 @@ fn cap_of(v: DVec3) -> f64 {
 
 impl FarSet {
     /// Of the `candidates` (active stencils that [`may_be_far`], with their
-    /// depth and pack, in key order), the far ones at the pass start `t0`:
+    /// depth and a tag, in key order), the far ones at the pass start `t0`:
     /// certified outside `eta_1` through the first internal tick after
     /// `t0` under caps of [`HEADROOM`] × their vertices' speeds. `mine`
-    /// tells the packs this rank runs; only their stencils are certified
-    /// (the others are returned as not far: this rank builds no unit of
-    /// them).
+    /// tells by tag which ones this rank keeps (the tag: a pack this rank
+    /// runs; over ranks with the units spread, every candidate, then those
+    /// it watches, tagged with their index among every rank's far
+    /// stencils); only those are certified (the others are returned as not
+    /// far).
     /// Returns the set and, per candidate, whether it is far.
     pub(super) fn new<E: Executor>(
         exec: &E,

@@ -940,11 +940,11 @@ impl<E: Executor> Engine<E> {
     }
 
     /// Over ranks with the units spread, after a segment's all-to-all:
-    /// every rank checks every far stencil against every unit's output
-    /// (this rank's units' `own`, the others' parts in `theirs`); while a
-    /// check promotes, the merged units move to their ranks, run the
-    /// segment again there, and their results replace the old ones in
-    /// another all-to-all. Returns the segment's totals (`totals`: the
+    /// each rank checks the far stencils it watches against the units'
+    /// outputs (this rank's units' `own`, and in `theirs` what the others
+    /// sent it), and the promotions are agreed; while a check promotes, the
+    /// merged units move to their ranks, run the segment again there, and
+    /// their results replace the old ones in another all-to-all. Returns the segment's totals (`totals`: the
     /// first all-to-all's) with the far stencils' counts.
     fn check_spread(
         &mut self,
@@ -1022,7 +1022,7 @@ impl<E: Executor> Engine<E> {
             )
             .collect();
         let all = self.exec.all_gather_vectors(&mine)?;
-        let (mut agreed, mut total) = (Vec::new(), Checked::default());
+        let (mut agreed, mut total) = (Vec::<u64>::new(), Checked::default());
         for part in &all {
             let Some((head, ids)) = part.split_first() else {
                 return Err(SimError::Ranks(crate::executor::CommError(
@@ -1033,8 +1033,15 @@ impl<E: Executor> Engine<E> {
                 evaluations: head.x.to_bits(),
                 min_separation: head.y,
             });
-            agreed.extend(ids.iter().map(|c| c.x.to_bits() as u32));
+            agreed.extend(ids.iter().map(|c| c.x.to_bits()));
         }
+        let far = self.ws.units.far_count() as u64;
+        if let Some(bad) = agreed.iter().find(|&&f| f >= far) {
+            return Err(SimError::Ranks(crate::executor::CommError(format!(
+                "a rank named far stencil {bad} of {far} to promote"
+            ))));
+        }
+        let mut agreed: Vec<u32> = agreed.into_iter().map(|f| f as u32).collect();
         agreed.sort_unstable();
         Ok((agreed, total))
     }

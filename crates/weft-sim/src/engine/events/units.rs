@@ -7,9 +7,14 @@
 //! running them apart). Without the split the units are the islands of the
 //! whole active set, the small ones packed (`Islands::packed`); over ranks
 //! each runs on one rank for the pass. With it, each island of the near
-//! stencils of this rank's packs is a unit of its own (packed, a promotion
-//! would merge every island of the units it touches), so a promotion merges
-//! units of one pack, on the rank running it. A promotion merges the units
+//! stencils is a unit of its own (packed, a promotion would merge every
+//! island of the units it touches); over ranks the units are spread
+//! ([`Spread`]): every rank knows every unit, runs those placed on it and
+//! watches some far stencils, and the engine agrees the promotions between
+//! the steps here ([`Units::renew`], [`Units::promote_agreed`],
+//! [`Units::run`], [`Units::check`], [`Units::check_agreed`],
+//! [`Units::rerun`], [`Units::finish`]), so a promotion may merge units of
+//! two ranks; the new unit's vertices then move to its rank. A promotion merges the units
 //! holding the far stencil's dynamic vertices, the stencil and its vertices
 //! outside every unit into one new unit, built from the world's state at the
 //! segment start (all awake: dormancy skips only zero kicks); if the segment
@@ -85,10 +90,10 @@ pub(super) struct Units {
     most_breakpoints: Vec<u32>,
     skipped: Vec<u32>,
     caps: Vec<AtomicU64>,
-    /// Over ranks with `contact.split_islands`, the units spread: per unit
-    /// the rank running it (every rank agrees), and the spec of each unit
-    /// another rank runs (what a merge here would build it from). Empty:
-    /// every unit runs here.
+    /// Over ranks with `contact.split_islands`, the units are spread
+    /// (`spread`): per unit the rank running it (every rank agrees), and
+    /// the spec of each unit another rank runs (what a merge here would
+    /// build it from). Not spread: every unit runs here.
     spread: bool,
     rank_of: Vec<u32>,
     remote: Vec<Option<UnitSpec>>,
@@ -105,7 +110,7 @@ pub(super) struct Units {
     /// compare with their caps), `+inf` for the others.
     report_cap: Vec<f64>,
     /// The segment's far-stencil counts and evaluations so far
-    /// (`Units::before` to `Units::finish`).
+    /// ([`Units::renew`] to [`Units::finish`]).
     seg_counts: FarCounts,
     seg_checked: Checked,
     /// The new units of the last promotion that run here, to build
@@ -275,6 +280,12 @@ impl Units {
         self.spread
     }
 
+    /// Spread over ranks: how many far stencils every rank watches
+    /// together (what a promotion may name).
+    pub(super) fn far_count(&self) -> usize {
+        self.far_all.len()
+    }
+
     /// Spread over ranks: the ranks watching a far stencil of vertex `i`.
     pub(super) fn watchers(&self, i: u32) -> &[u32] {
         match self.watcher_start.get(i as usize..i as usize + 2) {
@@ -389,6 +400,7 @@ impl Units {
         self.seg_counts.promoted += fs.len() as u64;
         self.promote(fs, w, homes).moves
     }
+
     /// The units visited this segment, run here in parallel: `(unit,
     /// output)` in unit order.
     pub(super) fn run<E: Executor>(
