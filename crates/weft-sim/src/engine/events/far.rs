@@ -200,7 +200,7 @@ impl Checked {
         self.min_separation = self.min_separation.min(other.min_separation);
     }
 
-    fn saw(&mut self, d: f64) {
+    pub(super) fn saw(&mut self, d: f64) {
         self.evaluations += 1;
         self.min_separation = self.min_separation.min(d);
     }
@@ -268,6 +268,30 @@ fn certify_in_runs<E: Executor>(
                     let caps = key.v.map(|i| cap[i as usize]);
                     certify(w, key.kind, &key.v, &caps, t)
                 })
+            })
+            .collect::<Vec<_>>()
+    });
+    runs.into_iter().flatten().collect()
+}
+
+/// Whether each of the stencils `keys` is far at the pass start `t0` (as
+/// [`FarSet::new`] decides it: certified through `first_internal` under
+/// caps of [`HEADROOM`] × its vertices' speeds), with the distance
+/// evaluated: over ranks with the units spread, each rank certifies a share
+/// of the candidates and the ranks all-gather the answers.
+pub(super) fn far_at_start<E: Executor>(
+    exec: &E,
+    w: &World,
+    keys: &[StencilKey],
+    (t0, first_internal): (Tick, Tick),
+) -> Vec<(bool, f64)> {
+    let n = keys.len();
+    let runs = exec.map(n.div_ceil(RENEW_RUN), &|r| {
+        (keys[r * RENEW_RUN..((r + 1) * RENEW_RUN).min(n)].iter())
+            .map(|key| {
+                let caps = key.v.map(|i| cap_of(w.v[i as usize]));
+                let (until, d) = certify(w, key.kind, &key.v, &caps, t0);
+                (until.is_some_and(|u| u > first_internal), d)
             })
             .collect::<Vec<_>>()
     });

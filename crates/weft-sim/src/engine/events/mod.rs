@@ -327,6 +327,41 @@ fn largest_first(costs: &[f64]) -> Vec<u32> {
 /// ([`place_near_home`]).
 const HOME_SLACK: f64 = 0.1;
 
+/// **Collective** (an all-gather): whether each stencil of `keys` is far
+/// at the pass start ([`far::far_at_start`]), each rank certifying its
+/// contiguous share; what certifying evaluated is added to `checked`.
+fn far_at_start_shared<E: crate::executor::Executor>(
+    exec: &E,
+    w: &World,
+    share: &RankShare,
+    keys: &[StencilKey],
+    (t0, first_internal, _): (Tick, Tick, Tick),
+    checked: &mut Checked,
+) -> Result<Vec<bool>, SimError> {
+    let (n, ranks) = (keys.len(), share.ranks);
+    let range = |r: usize| r * n / ranks..(r + 1) * n / ranks;
+    let mine = far::far_at_start(exec, w, &keys[range(share.rank)], (t0, first_internal));
+    let words: Vec<DVec3> = (mine.iter())
+        .map(|&(far, d)| DVec3::new(f64::from(u8::from(far)), d, 0.0))
+        .collect();
+    let all = exec.all_gather_vectors(&words)?;
+    let mut is_far = Vec::with_capacity(n);
+    for (r, part) in all.iter().enumerate() {
+        if part.len() != range(r).len() {
+            return Err(SimError::Ranks(crate::executor::CommError(format!(
+                "rank {r} certified {} far-stencil candidates for {}",
+                part.len(),
+                range(r).len()
+            ))));
+        }
+        for c in part {
+            checked.saw(c.y);
+            is_far.push(c.x == 1.0);
+        }
+    }
+    Ok(is_far)
+}
+
 /// Over ranks with `contact.split_islands`, the units spread: each unit
 /// placed near its home by its stencils, and each far stencil watched by
 /// the rank of the unit of its lowest dynamic vertex in a unit (else by
@@ -465,7 +500,7 @@ impl<E: Executor> Engine<E> {
         let layer_consts: Vec<(f64, f64, Tick)> = (1..=max_depth)
             .map(|l| (sched.eta(l), sched.k(l), sched.step(l)))
             .collect();
-        self.begin_islands(&active, &layer_consts, (t0, t1), &mut counts);
+        self.begin_islands(&active, &layer_consts, (t0, t1), &mut counts)?;
         drop(begin);
         let mut end = t1;
         let mut s = t0;
@@ -602,7 +637,7 @@ impl<E: Executor> Engine<E> {
         layer_consts: &[(f64, f64, Tick)],
         (t0, t1): (Tick, Tick),
         counts: &mut PassCounts,
-    ) {
+    ) -> Result<(), SimError> {
         let w = &self.world;
         let keys = active.iter().map(|a| &a.0);
         let islands = if self.one_island {
@@ -669,7 +704,17 @@ impl<E: Executor> Engine<E> {
                 .map(|&a| (active[a].0, active[a].1, pack_of[a]))
                 .collect();
             let pass = (t0, t0 + h_el, t1);
-            let (far, is_far) = FarSet::new(&self.exec, w, &listed, &mine, pass, &mut checked);
+            let (far, is_far) = match &self.share {
+                Some(share) if spread => {
+                    // (a share each, all-gathered: the units, and so the
+                    // far stencils each rank watches, follow from all)
+                    let keys: Vec<StencilKey> = listed.iter().map(|c| c.0).collect();
+                    let is_far =
+                        far_at_start_shared(&self.exec, w, share, &keys, pass, &mut checked)?;
+                    (FarSet::default(), is_far)
+                }
+                _ => FarSet::new(&self.exec, w, &listed, &mine, pass, &mut checked),
+            };
             let mut near = vec![true; active.len()];
             for (&a, &f) in candidates.iter().zip(&is_far) {
                 near[a] = !f;
@@ -814,6 +859,7 @@ impl<E: Executor> Engine<E> {
                 ws.owned_in_run = in_runs(&ws.vertex_runs, |i| share.owns(i));
             }
         }
+        Ok(())
     }
 
     /// Every island's segment `[s, e)` (and its kicks at the internal tick
@@ -846,8 +892,7 @@ impl<E: Executor> Engine<E> {
             let share = self.share.as_ref().expect("over ranks");
             let homes = (&share.reference_owner[..], &share.owner[..]);
             let moves = (self.ws.units).promote_agreed(&promote, checked, &self.world, homes);
-            self.migrate(&moves)?;
-            (self.ws.units).build(&self.exec, &self.world, s);
+            self.settle(&moves, s)?;
         }
         let pass = Pass {
             world: &self.world,
@@ -972,8 +1017,7 @@ impl<E: Executor> Engine<E> {
             let Some(merged) = merged else {
                 break;
             };
-            self.migrate(&merged.moves)?;
-            (self.ws.units).build(&self.exec, &self.world, s);
+            self.settle(&merged.moves, s)?;
             let pass = Pass {
                 world: &self.world,
                 layer_consts,
@@ -1044,6 +1088,15 @@ impl<E: Executor> Engine<E> {
         let mut agreed: Vec<u32> = agreed.into_iter().map(|f| f as u32).collect();
         agreed.sort_unstable();
         Ok((agreed, total))
+    }
+
+    /// Over ranks with the units spread, after a promotion at tick `s`:
+    /// the vertices of `moves` go to their units' new ranks, then the new
+    /// units of this rank are built (from their vertices' states there).
+    fn settle(&mut self, moves: &[units::Move], s: Tick) -> Result<(), SimError> {
+        self.migrate(moves)?;
+        (self.ws.units).build(&self.exec, &self.world, s);
+        Ok(())
     }
 
     /// Over ranks with the units spread: the vertices of `moves` whose unit
