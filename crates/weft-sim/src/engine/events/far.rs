@@ -26,7 +26,10 @@
 //!    the exact distance, `separation_lower_bound`). One that
 //!    cannot be certified through `e` is promoted before the segment runs.
 //! 2. **During**: an island reports every far vertex whose new speed breaks
-//!    its cap (`SegmentOutput::fast`), the caps being fixed for the segment.
+//!    its cap (`SegmentOutput::fast`), the caps being fixed for the segment
+//!    (over ranks with the units spread, every new speed of a far vertex,
+//!    and the ranks watching it compare the largest with their caps: the
+//!    same decisions).
 //! 3. **After** ([`FarSet::check`], then [`FarSet::commit`]): each far
 //!    stencil with such a vertex, or with a vertex that piled up
 //!    breakpoints, is checked over `[s, e]` from its distance bound at `s`
@@ -309,10 +312,10 @@ impl FarSet {
     /// certified outside `eta_1` through the first internal tick after
     /// `t0` under caps of [`HEADROOM`] × their vertices' speeds. `mine`
     /// tells by tag which ones this rank keeps (the tag: a pack this rank
-    /// runs; over ranks with the units spread, every candidate, then those
-    /// it watches, tagged with their index among every rank's far
-    /// stencils); only those are certified (the others are returned as not
-    /// far).
+    /// runs; over ranks with the units spread, the candidates are the far
+    /// stencils this rank watches, tagged with their index among every
+    /// rank's far stencils); only those are certified (the others are
+    /// returned as not far).
     /// Returns the set and, per candidate, whether it is far.
     pub(super) fn new<E: Executor>(
         exec: &E,
@@ -538,7 +541,8 @@ impl FarSet {
     /// (not yet written): of the far stencils whose vertices broke their
     /// caps (`fast`: `(vertex, speed²)`) or piled up breakpoints (`added`:
     /// `(vertex, count)`) in the segment (over every unit's output, reruns
-    /// included), those that may have come within `eta_1` in it. Returns them ascending, marked promoted (the
+    /// included), those that may have come within `eta_1` in it. Returns
+    /// them ascending, marked promoted (the
     /// caller merges them into units and reruns those, then checks again);
     /// with none, [`FarSet::commit`] ends the segment. Changes nothing else,
     /// so a check after a rerun sees only the final outputs.
