@@ -208,6 +208,22 @@ mod mpi {
         }
     }
 
+    /// With `contact.split_islands` the units spread over the MPI ranks,
+    /// and promotions move vertices between them (`engine/events`): the
+    /// fixture's hash, and the files of one process.
+    #[test]
+    fn mpi_ranks_with_the_units_spread_give_the_fixture_hash() {
+        let split = ["--set", "contact.split_islands=true"];
+        let one = tempfile::tempdir().unwrap();
+        let reference = summary(&run_fixture(1, 1, one.path(), &split));
+        assert_eq!(reference["state_hash"], FIXTURE_HASH);
+        let dir = tempfile::tempdir().unwrap();
+        let s = summary(&run_fixture(3, 1, dir.path(), &split));
+        assert_eq!(s["state_hash"], FIXTURE_HASH, "3 ranks, split");
+        assert_eq!(s["complete"], true);
+        assert_eq!(outputs(dir.path()), outputs(one.path()), "3 ranks, split");
+    }
+
     #[test]
     fn mpi_run_resumes_on_another_rank_count_and_without_mpi() {
         let dir = tempfile::tempdir().unwrap();
