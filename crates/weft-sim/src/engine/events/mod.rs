@@ -225,6 +225,17 @@ fn calm_forces<E: Executor>(
     (world.internal).evaluate_in_pieces(exec, (xt, &world.v), out, mask);
 }
 
+/// The parts of an all-to-all that other ranks sent this rank `me`, in
+/// rank order.
+fn from_peers(
+    received: Vec<Option<SegmentOutput>>,
+    me: usize,
+) -> impl Iterator<Item = SegmentOutput> {
+    (received.into_iter().enumerate())
+        .filter(move |(j, _)| *j != me)
+        .filter_map(|(_, part)| part)
+}
+
 /// Inserts `j` into the ascending `list` unless it is there.
 fn insert_sorted(list: &mut Vec<u16>, j: u16) {
     if let Err(at) = list.binary_search(&j) {
@@ -661,29 +672,31 @@ impl<E: Executor> Engine<E> {
         // The packs: the islands, the small ones packed; over ranks each
         // runs on one rank for the whole pass.
         let packs = islands.packed(self.island_pack);
-        let pack_cost: Vec<f64> = (0..packs.len())
-            .map(|k| packs.stencils_of(k).len() as f64)
-            .collect();
+        let me = self.exec.rank() as u32;
+        let split = self.far_stencils && !self.one_island && !self.every_layer_event;
+        let spread = split && self.share.is_some();
         let pack_rank = match &self.share {
-            None => vec![0; packs.len()],
-            Some(share) => {
+            Some(share) if !spread => {
                 // Each pack's home: the rank owning most of its vertices
                 // under the placement by size (`reference_owner`: not
                 // moved by the partitions placed by load).
+                let pack_cost: Vec<f64> = (0..packs.len())
+                    .map(|k| packs.stencils_of(k).len() as f64)
+                    .collect();
                 let home: Vec<u32> = (0..packs.len())
                     .map(|k| home_rank(share, packs.vertices_of(k)))
                     .collect();
                 place_near_home(&pack_cost, &home, share.ranks)
             }
+            // (one memory, or the units spread: no pack is placed)
+            _ => vec![me; packs.len()],
         };
         // This rank's packs as units; split, the islands of their near
         // stencils, with the far stencils beside. Split over ranks, the
-        // units are spread: every rank builds every unit's spec and watches
-        // every far stencil, and each unit runs on the rank placed for it
-        // (near the owners of its vertices, by its stencils).
-        let me = self.exec.rank() as u32;
-        let split = self.far_stencils && !self.one_island && !self.every_layer_event;
-        let spread = split && self.share.is_some();
+        // units are spread: every rank builds every unit's spec, each unit
+        // runs on the rank placed for it (near the owners of its vertices,
+        // by its stencils) and each far stencil is watched by one rank
+        // (`spread_units`).
         let mine = |k: u32| spread || pack_rank[k as usize] == me;
         let h_el = w.lattice.internal_step();
         let mut checked = Checked::default();
@@ -838,9 +851,13 @@ impl<E: Executor> Engine<E> {
         });
         if let Some(share) = &self.share {
             let ranks = share.ranks as u32;
-            let every = |(i, r): (u32, u32)| match r {
-                u32::MAX => (0..ranks).map(|r| (i, r)).collect::<Vec<_>>(),
-                r => vec![(i, r)],
+            let every = |(i, r): (u32, u32)| {
+                let (from, to) = if r == u32::MAX {
+                    (0, ranks)
+                } else {
+                    (r, r + 1)
+                };
+                (from..to).map(move |r| (i, r))
             };
             ws.pass_share = share.pass(reads.into_iter().flat_map(every));
             let live = &ws.pass_share.live;
@@ -963,13 +980,8 @@ impl<E: Executor> Engine<E> {
         let (heads, received) = exec.all_to_all(totals.words(), parts, &mut calm_piece)?;
         counts.internal_seconds += seconds;
         let mut all = SegmentTotals::summed(&heads, me as usize)?;
-        let theirs = |received: Vec<Option<SegmentOutput>>| {
-            (received.into_iter().enumerate())
-                .filter(|(j, _)| *j != me as usize)
-                .filter_map(|(_, part)| part)
-        };
         let mut outputs = outputs;
-        outputs.extend(theirs(received));
+        outputs.extend(from_peers(received, me as usize));
         let done = match calm {
             true => CalmDone::Partly(done),
             false => CalmDone::Nothing,
@@ -1039,11 +1051,7 @@ impl<E: Executor> Engine<E> {
             let mine = SegmentTotals::of(own.iter().map(|o| &o.1));
             let (heads, received) = self.exec.all_to_all(mine.words(), parts, &mut || false)?;
             totals = SegmentTotals::summed(&heads, me)?;
-            theirs.extend(
-                (received.into_iter().enumerate())
-                    .filter(|(j, _)| *j != me)
-                    .filter_map(|(_, part)| part),
-            );
+            theirs.extend(from_peers(received, me));
         }
         let far = self.ws.units.finish(internal);
         totals.add(&SegmentTotals::of(std::iter::once(&far)));
