@@ -134,6 +134,9 @@ struct Sample {
     /// Far stencils at the pass starts, promoted, and unit reruns, summed
     /// over windows (`contact.split_islands`).
     far: [u64; 4],
+    /// Vertices that moved to another rank with their unit in a merge
+    /// (`contact.split_islands` over ranks; the same count on every rank).
+    moved_between_ranks: u64,
     rollbacks: u64,
     /// Layers activated by prediction and by detection, and the predicted
     /// ones never reached, summed over windows.
@@ -268,6 +271,9 @@ pub struct ThreadResult {
     pub speedup_bound: Option<f64>,
     pub narrow_imbalance: Option<f64>,
     pub narrow_imbalance_home_only: Option<f64>,
+    /// Over ranks with the units spread (`contact.split_islands`): the
+    /// vertices per window that moved to another rank with their unit.
+    pub moved_between_ranks_per_window: f64,
 }
 
 /// What `weft bench` reports.
@@ -941,6 +947,7 @@ fn measure<E: Executor>(
     let queries_before = engine.totals.narrow_queries;
     let traffic_before = engine.executor().traffic();
     let cpu_before = engine.executor().work_cpu_seconds();
+    let moved_before = engine.moved_between_ranks;
     let mut s = Sample::default();
     let clock = Instant::now();
     for _ in 0..windows {
@@ -980,6 +987,7 @@ fn measure<E: Executor>(
     }
     s.own.wall = clock.elapsed().as_secs_f64();
     s.narrow_queries = engine.totals.narrow_queries - queries_before;
+    s.moved_between_ranks = engine.moved_between_ranks - moved_before;
     s.state_hash = engine.state_hash();
     let w = &engine.world;
     let islands = weft_sim::islands::Islands::build(w.layers.stencils.keys(), &w.inv_mass);
@@ -1141,6 +1149,7 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
             per_rank,
             narrow_imbalance: imbalance(&|l| &l.balanced),
             narrow_imbalance_home_only: imbalance(&|l| &l.home_only),
+            moved_between_ranks_per_window: med(&|s| s.moved_between_ranks as f64 / windows),
         });
     }
     if let Some(t1) = r
@@ -1345,6 +1354,13 @@ fn table(r: &BenchReport) -> String {
             ratio(t.narrow_imbalance),
             ratio(t.narrow_imbalance_home_only)
         );
+        if t.moved_between_ranks_per_window > 0.0 {
+            let _ = writeln!(
+                s,
+                "  units spread: {:.0} vertices per window moved to another rank with their unit",
+                t.moved_between_ranks_per_window
+            );
+        }
         for k in &t.per_rank {
             let st = &k.stage_seconds_per_window;
             let _ = writeln!(

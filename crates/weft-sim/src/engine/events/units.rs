@@ -33,7 +33,7 @@ use weft_core::{StencilKey, NONE};
 
 use super::far::{Checked, FarSet};
 use super::island::{Island, Pass, SegmentOutput, Shared};
-use super::{BINS_PER_RANK, BINS_PER_THREAD, CAP_CHECK_RUN};
+use super::{BINS_PER_RANK, BINS_PER_THREAD};
 use crate::clock::Tick;
 use crate::dormancy::{changes_cap, SharedCaps, BREAKPOINTS_PER_WAKE};
 use crate::executor::Executor;
@@ -62,6 +62,11 @@ pub(super) struct Units {
     islands: Vec<Mutex<Island>>,
     /// Whether a unit still runs (not merged into another).
     live: Vec<bool>,
+    /// The live units that run here, ascending: what a segment's
+    /// bookkeeping loops over (spread over ranks, a rank runs a share of
+    /// every rank's units, and a loop over all of them at every segment
+    /// was work that did not shrink with the ranks).
+    mine: Vec<u32>,
     /// Each unit's cost: its stencils at first, then the seconds its last
     /// segment took; units are dealt largest first.
     cost: Vec<f64>,
@@ -174,25 +179,20 @@ impl Units {
         } = spread.unwrap_or_default();
         // Per vertex, the ranks watching a far stencil of it (ascending).
         let n = w.num_vertices();
-        let mut pairs: Vec<(u32, u32)> = (far_all.iter().zip(&watcher))
-            .flat_map(|(f, &r)| f.0.v.map(|i| (i, r)))
-            .collect();
-        pairs.sort_unstable();
-        pairs.dedup();
-        let mut watcher_start = vec![0u32; if far_all.is_empty() { 0 } else { n + 1 }];
+        let (watcher_start, watcher_ranks) = watchers_by_vertex(n, &far_all, &watcher);
         let mut report_cap = Vec::new();
         if !far_all.is_empty() {
             report_cap = vec![f64::INFINITY; n];
-            for &(i, _) in &pairs {
-                watcher_start[i as usize + 1] += 1;
-                report_cap[i as usize] = 0.0;
-            }
             for i in 0..n {
-                watcher_start[i + 1] += watcher_start[i];
+                if watcher_start[i] < watcher_start[i + 1] {
+                    report_cap[i] = 0.0;
+                }
             }
         }
-        let watcher_ranks: Vec<u32> = pairs.into_iter().map(|p| p.1).collect();
         let here = |u: usize| !spreads || rank_of[u] == me;
+        let mine: Vec<u32> = (0..specs.len() as u32)
+            .filter(|&u| here(u as usize))
+            .collect();
         let mut unit_of_vertex = vec![NONE; w.num_vertices()];
         for (u, (vertices, _)) in specs.iter().enumerate() {
             for &i in vertices {
@@ -243,6 +243,7 @@ impl Units {
         );
         Units {
             live: vec![true; islands.len()],
+            mine,
             islands,
             cost,
             unit_of_vertex,
@@ -566,49 +567,81 @@ impl Units {
         w: &World,
         e: Tick,
         internal: bool,
-    ) -> Vec<bool> {
+    ) -> Vec<u32> {
         let last = if internal { e } else { e.saturating_sub(1) };
-        let units = self.islands.len();
-        // (A unit another rank runs is never visited here.)
-        let runs: Vec<bool> = (0..units).map(|u| self.live[u] && self.here(u)).collect();
-        let mut visit: Vec<bool> = (0..units)
-            .map(|u| runs[u] && self.quiet[u].is_none_or(|due| due <= last))
+        // (A unit another rank runs is never visited here: only `mine`.)
+        let mine = &self.mine;
+        let mut visit: Vec<bool> = (mine.iter())
+            .map(|&u| self.quiet[u as usize].is_none_or(|due| due <= last))
             .collect();
         if self.after_internal {
             let all = !self.kinematic_woken.is_empty();
-            for u in 0..units {
+            for (k, &u) in mine.iter().enumerate() {
+                let u = u as usize;
                 let limit = self.most_breakpoints[u] + self.skipped[u] + 1 >= BREAKPOINTS_PER_WAKE;
-                visit[u] |= runs[u] && (all || limit);
+                visit[k] |= all || limit;
             }
             // The units of the vertices whose new speed would change their
-            // cap, found on the executor (reads only).
-            let (of_vertex, caps, seen) = (&self.unit_of_vertex, &self.caps, &visit);
-            let runs = &runs;
-            let n = of_vertex.len();
-            let broke = exec.map(n.div_ceil(CAP_CHECK_RUN), &|r| {
-                let mut units = Vec::new();
-                for i in r * CAP_CHECK_RUN..((r + 1) * CAP_CHECK_RUN).min(n) {
-                    let u = of_vertex[i];
-                    let fresh = u != NONE && runs[u as usize] && !seen[u as usize];
-                    if fresh && units.last() != Some(&u) {
-                        let cap = f64::from_bits(caps[i].load(Ordering::Relaxed));
-                        if changes_cap(w.v[i], cap) {
-                            units.push(u);
-                        }
+            // cap, found on the executor (reads only), unit by unit over
+            // the units' own vertices.
+            let (islands, of_vertex, caps, seen) =
+                (&self.islands, &self.unit_of_vertex, &self.caps, &visit);
+            let broke = exec.map(mine.len().div_ceil(CAP_CHECK_UNITS), &|r| {
+                let mut found = Vec::new();
+                for k in r * CAP_CHECK_UNITS..((r + 1) * CAP_CHECK_UNITS).min(mine.len()) {
+                    if seen[k] {
+                        continue;
+                    }
+                    let u = mine[k];
+                    let island = islands[u as usize].lock().expect("a unit's lock");
+                    let changes = |&i: &u32| {
+                        let cap = f64::from_bits(caps[i as usize].load(Ordering::Relaxed));
+                        of_vertex[i as usize] == u && changes_cap(w.v[i as usize], cap)
+                    };
+                    if island.vertices().iter().any(changes) {
+                        found.push(k);
                     }
                 }
-                units
+                found
             });
-            for u in broke.into_iter().flatten() {
-                visit[u as usize] = true;
+            for k in broke.into_iter().flatten() {
+                visit[k] = true;
             }
-            for u in 0..units {
-                if runs[u] && !visit[u] {
-                    self.skipped[u] += 1;
+            debug_assert_eq!(
+                visit,
+                self.visits_by_vertex(w, last),
+                "the units' vertices are the vertices of their units"
+            );
+            for (k, &u) in mine.iter().enumerate() {
+                if !visit[k] {
+                    self.skipped[u as usize] += 1;
                 }
             }
         }
-        visit
+        (mine.iter().zip(visit))
+            .filter_map(|(&u, v)| v.then_some(u))
+            .collect()
+    }
+
+    /// [`Units::units_to_visit`]'s choice after an internal tick, found
+    /// vertex by vertex over the world (the reference for the unit by unit
+    /// search; debug builds compare them).
+    fn visits_by_vertex(&self, w: &World, last: Tick) -> Vec<bool> {
+        let all = !self.kinematic_woken.is_empty();
+        let mut visit: Vec<bool> = vec![false; self.islands.len()];
+        for &u in &self.mine {
+            let u = u as usize;
+            let limit = self.most_breakpoints[u] + self.skipped[u] + 1 >= BREAKPOINTS_PER_WAKE;
+            visit[u] = all || limit || self.quiet[u].is_none_or(|due| due <= last);
+        }
+        let runs = |u: u32| self.mine.binary_search(&u).is_ok();
+        for (i, &u) in self.unit_of_vertex.iter().enumerate() {
+            if u != NONE && runs(u) {
+                let cap = f64::from_bits(self.caps[i].load(Ordering::Relaxed));
+                visit[u as usize] |= changes_cap(w.v[i], cap);
+            }
+        }
+        self.mine.iter().map(|&u| visit[u as usize]).collect()
     }
 
     /// What the units visited reported (`Island::report`).
@@ -737,6 +770,7 @@ impl Units {
                 self.live[u as usize] = false;
                 self.cost[u as usize] = 0.0;
                 merged.emptied.push(u);
+                set_member(&mut self.mine, u, false);
             }
             for &i in &vertices {
                 self.unit_of_vertex[i as usize] = slot;
@@ -753,6 +787,8 @@ impl Units {
             if self.spread() {
                 self.rank_of[slot as usize] = rank;
             }
+            let here = self.here(slot as usize);
+            set_member(&mut self.mine, slot, here);
             if self.here(slot as usize) {
                 built.push((slot, Mutex::new(Some((vertices, members)))));
             } else {
@@ -818,6 +854,73 @@ impl Units {
     }
 }
 
+/// Puts `u` in the ascending list `list` (`true`) or takes it out.
+fn set_member(list: &mut Vec<u32>, u: u32, member: bool) {
+    match (list.binary_search(&u), member) {
+        (Err(at), true) => list.insert(at, u),
+        (Ok(at), false) => {
+            list.remove(at);
+        }
+        _ => {}
+    }
+}
+
+/// Per vertex of `n`, the ranks watching a far stencil of it, ascending
+/// (CSR: starts, ranks; both empty without far stencils), from the far
+/// stencils `far` and the rank watching each: counted into buckets by
+/// vertex, then each bucket sorted and its repeats dropped (every rank
+/// builds it at every pass start, and a sort of all the pairs was a
+/// measurable part of a rank's pass at 100k vertices).
+fn watchers_by_vertex(
+    n: usize,
+    far: &[(StencilKey, u32)],
+    watcher: &[u32],
+) -> (Vec<u32>, Vec<u32>) {
+    if far.is_empty() {
+        return (Vec::new(), Vec::new());
+    }
+    let mut start = vec![0u32; n + 1];
+    for f in far {
+        for i in f.0.v {
+            start[i as usize + 1] += 1;
+        }
+    }
+    for i in 0..n {
+        start[i + 1] += start[i];
+    }
+    let mut next = start.clone();
+    let mut ranks = vec![0u32; start[n] as usize];
+    for (f, &r) in far.iter().zip(watcher) {
+        for i in f.0.v {
+            ranks[next[i as usize] as usize] = r;
+            next[i as usize] += 1;
+        }
+    }
+    // Each vertex's bucket sorted, its repeats dropped, compacted in place.
+    let mut kept = 0usize;
+    for i in 0..n {
+        let (a, b) = (start[i] as usize, start[i + 1] as usize);
+        start[i] = kept as u32;
+        ranks[a..b].sort_unstable();
+        let mut last = None;
+        for k in a..b {
+            if last != Some(ranks[k]) {
+                last = Some(ranks[k]);
+                ranks[kept] = ranks[k];
+                kept += 1;
+            }
+        }
+    }
+    start[n] = kept as u32;
+    ranks.truncate(kept);
+    (start, ranks)
+}
+
+/// Units per task of the speed-cap checks after an internal tick (a
+/// packed unit holds about 64 stencils, so some hundred vertices: a read
+/// and a compare each).
+const CAP_CHECK_UNITS: usize = 16;
+
 /// The cost of a unit whose last segment was idle.
 const IDLE_SECONDS: f64 = 1e-7;
 
@@ -848,7 +951,7 @@ fn with_caps<'a>(
 fn run_bins<E: Executor>(
     exec: &E,
     shared: &Shared<'_>,
-    (islands, visit, cost): (&[Mutex<Island>], &[bool], &mut [f64]),
+    (islands, visit, cost): (&[Mutex<Island>], &[u32], &mut [f64]),
     (skipped, caps): (&[u32], &[AtomicU64]),
     (s, e): (Tick, Tick),
     internal: bool,
@@ -864,14 +967,8 @@ fn run_bins<E: Executor>(
     // The units that worked last segment, largest first, then the idle
     // ones in turn (sorting thousands of idle units at every segment cost
     // more than their checks).
-    let (mut busy, mut idle) = (Vec::new(), Vec::new());
-    for k in 0..cost.len() {
-        match (visit[k], cost[k] > IDLE_SECONDS) {
-            (false, _) => {}
-            (true, true) => busy.push(k as u32),
-            (true, false) => idle.push(k as u32),
-        }
-    }
+    let (mut busy, idle): (Vec<u32>, Vec<u32>) =
+        (visit.iter()).partition(|&&k| cost[k as usize] > IDLE_SECONDS);
     busy.sort_by(|&a, &b| {
         cost[b as usize]
             .total_cmp(&cost[a as usize])
@@ -934,3 +1031,79 @@ fn by_unit(outputs: Vec<(u32, SegmentOutput)>) -> Vec<(u32, SegmentOutput)> {
 
 /// What a visited unit reported: its index and `Island::report`.
 type Report = (u32, (Option<Tick>, u32));
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use weft_core::StencilKind;
+
+    /// xorshift64*: numbers below `n`.
+    struct Rng(u64);
+
+    impl Rng {
+        fn below(&mut self, n: u64) -> u64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) % n
+        }
+    }
+
+    /// The counted buckets give what sorting every (vertex, rank) pair and
+    /// dropping the repeats gives, on random far stencils sharing vertices
+    /// (some watched by the same rank twice).
+    #[test]
+    fn watchers_by_vertex_are_the_sorted_distinct_pairs() {
+        let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+        for case in 0..50 {
+            let n = 1 + rng.below(40) as usize;
+            let ranks = 1 + rng.below(6);
+            let far: Vec<(StencilKey, u32)> = (0..rng.below(60))
+                .map(|_| {
+                    let v = [0; 4].map(|_| rng.below(n as u64) as u32);
+                    let kind = StencilKind::EdgeEdge;
+                    (StencilKey { kind, v }, 1)
+                })
+                .collect();
+            let watcher: Vec<u32> = far.iter().map(|_| rng.below(ranks) as u32).collect();
+            let (start, got) = watchers_by_vertex(n, &far, &watcher);
+            let mut pairs: Vec<(u32, u32)> = (far.iter().zip(&watcher))
+                .flat_map(|(f, &r)| f.0.v.map(|i| (i, r)))
+                .collect();
+            pairs.sort_unstable();
+            pairs.dedup();
+            if far.is_empty() {
+                assert!(start.is_empty() && got.is_empty(), "case {case}");
+                continue;
+            }
+            assert_eq!(start.len(), n + 1, "case {case}");
+            for i in 0..n {
+                let want: Vec<u32> = (pairs.iter())
+                    .filter(|p| p.0 == i as u32)
+                    .map(|p| p.1)
+                    .collect();
+                let (a, b) = (start[i] as usize, start[i + 1] as usize);
+                assert_eq!(got[a..b], want[..], "case {case}, vertex {i}");
+            }
+            assert_eq!(got.len(), pairs.len(), "case {case}");
+        }
+    }
+
+    /// `set_member` keeps a list ascending and free of repeats, as a set.
+    #[test]
+    fn set_member_keeps_an_ascending_set() {
+        let mut rng = Rng(7);
+        let mut list = Vec::new();
+        let mut reference = std::collections::BTreeSet::new();
+        for _ in 0..2000 {
+            let u = rng.below(50) as u32;
+            let member = rng.below(2) == 0;
+            set_member(&mut list, u, member);
+            match member {
+                true => reference.insert(u),
+                false => reference.remove(&u),
+            };
+            assert_eq!(list, reference.iter().copied().collect::<Vec<_>>());
+        }
+    }
+}
