@@ -371,6 +371,14 @@ fn bench_projects_more_ranks_from_the_replayed_steps() {
         assert!(replay > 0.0 && critical > 0.0, "{r}");
         assert!(replay >= 0.9 * critical, "{r}");
     }
+    for b in fast["between_collectives"].as_array().unwrap() {
+        // (ranks, busiest rank's work summed over the intervals, the mean
+        // rank's): the busiest is never below the mean.
+        let (most, mean) = (b[1].as_f64().unwrap(), b[2].as_f64().unwrap());
+        assert!(mean > 0.0 && most >= mean, "{b}");
+    }
+    let fit = fast["fit"].as_array().unwrap();
+    assert!(fit.iter().all(|f| f.as_f64().unwrap() >= 0.0), "{fast}");
     let projected = fast["projected"].as_array().unwrap();
     let ranks: Vec<u64> = projected
         .iter()

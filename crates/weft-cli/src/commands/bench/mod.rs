@@ -355,6 +355,14 @@ pub struct ProjectionReport {
     /// Each measured rank count: the replay of its steps (seconds per
     /// window) and its counted critical path.
     pub replayed: Vec<(usize, f64, f64)>,
+    /// Each measured rank count: summed over the intervals between its
+    /// collectives, the busiest rank's work and the mean rank's (seconds
+    /// per window; `project::between_collectives`).
+    pub between_collectives: Vec<(usize, f64, f64)>,
+    /// The fit summed over the intervals (seconds per window): the work
+    /// that does not shrink with the ranks (Σ a) and the work shared (Σ b,
+    /// the busiest rank's is Σ b / R).
+    pub fit: (f64, f64),
     /// Each asked rank count: the model's seconds per window (and its
     /// parts), and T1 / (R · T(R)).
     pub projected: Vec<(project::Projected, Option<f64>)>,
@@ -792,6 +800,7 @@ fn projection(
     let windows = r.windows as f64;
     let mut measured = Vec::new();
     let mut replayed = Vec::new();
+    let mut between = Vec::new();
     for ((ranks, _), samples) in all.iter().filter(|((ranks, _), _)| *ranks > 1) {
         let walls: Vec<f64> = samples.iter().map(|s| s.own.wall).collect();
         let mid = median(&walls);
@@ -812,10 +821,15 @@ fn projection(
             .map_or(0.0, |t| t.critical_path_seconds_per_window);
         replayed.push((*ranks, seconds / windows, critical));
         let iv = project::intervals(&s.steps).map_err(|e| anyhow::anyhow!("{ranks} ranks: {e}"))?;
+        let (most, mean) = project::between_collectives(&iv);
+        between.push((*ranks, most / windows, mean / windows));
         measured.push((*ranks, iv));
     }
     let one = r.results.iter().find(|t| t.ranks == 1);
     let t1 = one.map(|t| t.cpu_sum_seconds_per_window);
+    let fit = (project::fitted(&measured).iter()).fold((0.0, 0.0), |f, m| {
+        (f.0 + m.0 / windows, f.1 + m.1 / windows)
+    });
     let projected = project::project(&measured, targets, &net)
         .map_err(|e| anyhow::anyhow!(e))?
         .into_iter()
@@ -847,6 +861,8 @@ fn projection(
         network: net,
         one_process_seconds_per_window: t1,
         replayed,
+        between_collectives: between,
+        fit,
         projected,
     })
 }
@@ -1422,14 +1438,28 @@ fn table(r: &BenchReport) -> String {
                 .expect("no variant is skipped")
                 .get_name()
         );
-        for (ranks, replay, critical) in &p.replayed {
+        for ((ranks, replay, critical), (_, most, mean)) in
+            p.replayed.iter().zip(&p.between_collectives)
+        {
             let _ = writeln!(
                 s,
-                "  replay of the {ranks} simulated ranks: {} ms per window (counted critical path {} ms)",
+                "  replay of the {ranks} simulated ranks: {} ms per window (counted critical path {} ms); \
+                 between collectives the busiest rank's work sums to {} ms, the mean rank's to {} ms \
+                 (imbalance {})",
                 ms(*replay),
-                ms(*critical)
+                ms(*critical),
+                ms(*most),
+                ms(*mean),
+                ratio((*mean > 0.0).then(|| most / mean))
             );
         }
+        let _ = writeln!(
+            s,
+            "  the fit, a + b / R per interval, summed: {} ms a window that does not shrink with \
+             the ranks (Σ a), {} ms shared (Σ b)",
+            ms(p.fit.0),
+            ms(p.fit.1)
+        );
         let _ = writeln!(
             s,
             "  ranks  ms/window  work  all-gathers  point-to-point  efficiency (T1 = {} ms)",

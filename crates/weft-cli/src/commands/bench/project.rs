@@ -328,6 +328,39 @@ fn fit_nonnegative(points: &[(f64, f64)]) -> (f64, f64) {
     (a, b)
 }
 
+/// The busiest rank's work in each interval fitted as `a + b / R` over the
+/// measured rank counts (the same collective schedule in each).
+pub fn fitted(measured: &[(usize, Vec<Interval>)]) -> Vec<(f64, f64)> {
+    let c = measured.first().map_or(0, |m| m.1.len());
+    (0..c)
+        .map(|k| {
+            let points: Vec<(f64, f64)> = (measured.iter())
+                .map(|(r, iv)| (1.0 / *r as f64, busiest(&iv[k].work)))
+                .collect();
+            fit_nonnegative(&points)
+        })
+        .collect()
+}
+
+/// The most work of any rank.
+fn busiest(work: &[f64]) -> f64 {
+    work.iter().copied().fold(0.0, f64::max)
+}
+
+/// Summed over the intervals of one run: the busiest rank's work and the
+/// mean rank's (seconds). Their ratio is the load imbalance the ranks meet
+/// between collectives, which a per-window sum of each rank's work
+/// averages away (each rank's busy intervals may be others' idle ones).
+pub fn between_collectives(intervals: &[Interval]) -> (f64, f64) {
+    intervals.iter().fold((0.0, 0.0), |(most, mean), iv| {
+        let n = iv.work.len().max(1) as f64;
+        (
+            most + busiest(&iv.work),
+            mean + iv.work.iter().sum::<f64>() / n,
+        )
+    })
+}
+
 /// One projected rank count.
 #[derive(Clone, Debug, Serialize)]
 pub struct Projected {
@@ -369,15 +402,7 @@ pub fn project(
         .max_by_key(|m| m.0)
         .map(|m| (m.0, &m.1))
         .expect("two or more");
-    let busiest = |w: &[f64]| w.iter().copied().fold(0.0, f64::max);
-    let model: Vec<(f64, f64)> = (0..c)
-        .map(|k| {
-            let points: Vec<(f64, f64)> = (measured.iter())
-                .map(|(r, iv)| (1.0 / *r as f64, busiest(&iv[k].work)))
-                .collect();
-            fit_nonnegative(&points)
-        })
-        .collect();
+    let model = fitted(measured);
     Ok(targets
         .iter()
         .map(|&r| {
@@ -531,6 +556,28 @@ mod tests {
         ];
         assert!(replay(&steps, &NET).is_err());
         assert!(intervals(&steps).is_err());
+    }
+
+    #[test]
+    fn between_collectives_sums_each_intervals_busiest_and_mean_rank() {
+        // Two intervals where the ranks take turns at being busy: each rank
+        // works 40 µs in all, but every interval waits for a 30 µs rank.
+        let steps = vec![
+            vec![
+                step(30, true, &[(0, 8)], &[]),
+                step(10, true, &[(0, 8)], &[]),
+            ],
+            vec![
+                step(10, true, &[(1, 8)], &[]),
+                step(30, true, &[(1, 8)], &[]),
+            ],
+        ];
+        let iv = intervals(&steps).unwrap();
+        let (most, mean) = between_collectives(&iv);
+        assert!((most - 60e-6).abs() < 1e-15, "{most}");
+        assert!((mean - 40e-6).abs() < 1e-15, "{mean}");
+        // The replay pays the busiest rank of each interval.
+        assert!(replay(&steps, &NET).unwrap() >= most);
     }
 
     #[test]
