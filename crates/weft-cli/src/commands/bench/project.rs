@@ -17,9 +17,13 @@
 //!   then moves its parts as point-to-point messages; a
 //!   point-to-point message leaves after the sender's overhead `o` and
 //!   arrives `L + G b` later, and the receiver pays `o` (no overlap of work
-//!   and messages is credited). So the replay
-//!   keeps the measured load imbalance between every two collectives, which
-//!   a per-window sum would average away.
+//!   and messages is credited; the recorded ranks, for the same reason, run
+//!   no work in an all-to-all's wait, which on an oversubscribed machine
+//!   would put a rank's next internal tick's calm part in whichever interval
+//!   the scheduler chose: at 8 simulated ranks of the 10k twister, 1.52
+//!   times the mean rank's work between collectives instead of 1.25). So
+//!   the replay keeps the measured load imbalance between every two
+//!   collectives, which a per-window sum would average away.
 //! * **Projection** ([`project`]) to rank counts not measured: the engine's
 //!   collective schedule does not depend on the rank count, so the work of
 //!   the busiest rank between collectives `c - 1` and `c` is fitted per
