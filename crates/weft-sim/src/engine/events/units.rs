@@ -33,7 +33,7 @@ use weft_core::{StencilKey, NONE};
 
 use super::far::{Checked, FarSet};
 use super::island::{Island, Pass, SegmentOutput, Shared};
-use super::{BINS_PER_RANK, BINS_PER_THREAD};
+use super::{BINS_PER_RANK, BINS_PER_THREAD, CAP_CHECK_RUN};
 use crate::clock::Tick;
 use crate::dormancy::{changes_cap, SharedCaps, BREAKPOINTS_PER_WAKE};
 use crate::executor::Executor;
@@ -67,6 +67,9 @@ pub(super) struct Units {
     /// every rank's units, and a loop over all of them at every segment
     /// was work that did not shrink with the ranks).
     mine: Vec<u32>,
+    /// The dynamic vertices of those units, ascending (kept through the
+    /// merges): what the speed-cap check after an internal tick scans.
+    my_vertices: Vec<u32>,
     /// Each unit's cost: its stencils at first, then the seconds its last
     /// segment took; units are dealt largest first.
     cost: Vec<f64>,
@@ -193,6 +196,10 @@ impl Units {
         let mine: Vec<u32> = (0..specs.len() as u32)
             .filter(|&u| here(u as usize))
             .collect();
+        let mut my_vertices: Vec<u32> = (mine.iter())
+            .flat_map(|&u| specs[u as usize].0.iter().copied())
+            .collect();
+        my_vertices.sort_unstable();
         let mut unit_of_vertex = vec![NONE; w.num_vertices()];
         for (u, (vertices, _)) in specs.iter().enumerate() {
             for &i in vertices {
@@ -244,6 +251,7 @@ impl Units {
         Units {
             live: vec![true; islands.len()],
             mine,
+            my_vertices,
             islands,
             cost,
             unit_of_vertex,
@@ -582,31 +590,39 @@ impl Units {
                 visit[k] |= all || limit;
             }
             // The units of the vertices whose new speed would change their
-            // cap, found on the executor (reads only), unit by unit over
-            // the units' own vertices.
-            let (islands, of_vertex, caps, seen) =
-                (&self.islands, &self.unit_of_vertex, &self.caps, &visit);
-            let broke = exec.map(mine.len().div_ceil(CAP_CHECK_UNITS), &|r| {
-                let mut found = Vec::new();
-                for k in r * CAP_CHECK_UNITS..((r + 1) * CAP_CHECK_UNITS).min(mine.len()) {
-                    if seen[k] {
-                        continue;
-                    }
-                    let u = mine[k];
-                    let island = islands[u as usize].lock().expect("a unit's lock");
-                    let changes = |&i: &u32| {
+            // cap, found on the executor (reads only) over the vertices of
+            // the units that run here.
+            let mut seen = vec![false; self.islands.len()];
+            for (k, &u) in mine.iter().enumerate() {
+                seen[u as usize] = visit[k];
+            }
+            let (of_vertex, caps, seen, vertices) =
+                (&self.unit_of_vertex, &self.caps, &seen, &self.my_vertices);
+            let broke = exec.map(vertices.len().div_ceil(CAP_CHECK_RUN), &|r| {
+                let mut units = Vec::new();
+                let run =
+                    &vertices[r * CAP_CHECK_RUN..((r + 1) * CAP_CHECK_RUN).min(vertices.len())];
+                for &i in run {
+                    let u = of_vertex[i as usize];
+                    if !seen[u as usize] && units.last() != Some(&u) {
                         let cap = f64::from_bits(caps[i as usize].load(Ordering::Relaxed));
-                        of_vertex[i as usize] == u && changes_cap(w.v[i as usize], cap)
-                    };
-                    if island.vertices().iter().any(changes) {
-                        found.push(k);
+                        if changes_cap(w.v[i as usize], cap) {
+                            units.push(u);
+                        }
                     }
                 }
-                found
+                units
             });
-            for k in broke.into_iter().flatten() {
+            let broke = (broke.into_iter().flatten())
+                .map(|u| mine.binary_search(&u).expect("a unit that runs here"));
+            for k in broke {
                 visit[k] = true;
             }
+            debug_assert_eq!(
+                self.my_vertices,
+                self.vertices_by_unit_of_vertex(),
+                "the vertices kept for the units that run here"
+            );
             debug_assert_eq!(
                 visit,
                 self.visits_by_vertex(w, last),
@@ -623,9 +639,21 @@ impl Units {
             .collect()
     }
 
+    /// The vertices of the units that run here, from each vertex's unit
+    /// (the reference for `my_vertices`; debug builds compare them).
+    fn vertices_by_unit_of_vertex(&self) -> Vec<u32> {
+        let runs = |u: u32| self.mine.binary_search(&u).is_ok();
+        (0..self.unit_of_vertex.len() as u32)
+            .filter(|&i| {
+                let u = self.unit_of_vertex[i as usize];
+                u != NONE && runs(u)
+            })
+            .collect()
+    }
+
     /// [`Units::units_to_visit`]'s choice after an internal tick, found
-    /// vertex by vertex over the world (the reference for the unit by unit
-    /// search; debug builds compare them).
+    /// vertex by vertex over the world (the reference for the search over
+    /// `my_vertices`; debug builds compare them).
     fn visits_by_vertex(&self, w: &World, last: Tick) -> Vec<bool> {
         let all = !self.kinematic_woken.is_empty();
         let mut visit: Vec<bool> = vec![false; self.islands.len()];
@@ -718,6 +746,9 @@ impl Units {
         // order of `changed`; those that run here built on the executor
         // below).
         let mut built: Vec<(u32, Mutex<Option<UnitSpec>>)> = Vec::new();
+        // The vertices of the new units that run here, and of those that
+        // run elsewhere (`my_vertices` is updated with them).
+        let (mut joined, mut left) = (Vec::new(), Vec::new());
         for group in groups.into_iter().flatten() {
             let mut units: Vec<u32> = (group.joins.iter())
                 .filter(|&&j| j >> 32 == 0)
@@ -789,6 +820,10 @@ impl Units {
             }
             let here = self.here(slot as usize);
             set_member(&mut self.mine, slot, here);
+            match here {
+                true => joined.extend_from_slice(&vertices),
+                false => left.extend_from_slice(&vertices),
+            }
             if self.here(slot as usize) {
                 built.push((slot, Mutex::new(Some((vertices, members)))));
             } else {
@@ -797,6 +832,9 @@ impl Units {
             merged.changed.push(slot);
         }
         self.to_build = built;
+        joined.sort_unstable();
+        left.sort_unstable();
+        self.my_vertices = with_and_without(&self.my_vertices, &joined, &left);
         merged.changed.sort_unstable();
         merged.emptied.sort_unstable();
         merged.vertices.sort_unstable();
@@ -865,6 +903,31 @@ fn set_member(list: &mut Vec<u32>, u: u32, member: bool) {
     }
 }
 
+/// The ascending set `set` with the ascending `joined` (none in `left`)
+/// and without the ascending `left`, in one pass.
+fn with_and_without(set: &[u32], joined: &[u32], left: &[u32]) -> Vec<u32> {
+    let mut out = Vec::with_capacity(set.len() + joined.len());
+    let (mut j, mut l) = (0, 0);
+    for &i in set {
+        while j < joined.len() && joined[j] < i {
+            out.push(joined[j]);
+            j += 1;
+        }
+        while l < left.len() && left[l] < i {
+            l += 1;
+        }
+        if j < joined.len() && joined[j] == i {
+            j += 1;
+        }
+        if l < left.len() && left[l] == i {
+            continue;
+        }
+        out.push(i);
+    }
+    out.extend_from_slice(&joined[j..]);
+    out
+}
+
 /// Per vertex of `n`, the ranks watching a far stencil of it, ascending
 /// (CSR: starts, ranks; both empty without far stencils), from the far
 /// stencils `far` and the rank watching each: counted into buckets by
@@ -915,11 +978,6 @@ fn watchers_by_vertex(
     ranks.truncate(kept);
     (start, ranks)
 }
-
-/// Units per task of the speed-cap checks after an internal tick (a
-/// packed unit holds about 64 stencils, so some hundred vertices: a read
-/// and a compare each).
-const CAP_CHECK_UNITS: usize = 16;
 
 /// The cost of a unit whose last segment was idle.
 const IDLE_SECONDS: f64 = 1e-7;
@@ -1086,6 +1144,32 @@ mod tests {
                 assert_eq!(got[a..b], want[..], "case {case}, vertex {i}");
             }
             assert_eq!(got.len(), pairs.len(), "case {case}");
+        }
+    }
+
+    /// `with_and_without` is the set union and difference.
+    #[test]
+    fn with_and_without_is_the_union_then_the_difference() {
+        let mut rng = Rng(11);
+        for case in 0..300 {
+            let mut pick = |k: u64| {
+                let mut v: Vec<u32> = (0..rng.below(k)).map(|_| rng.below(60) as u32).collect();
+                v.sort_unstable();
+                v.dedup();
+                v
+            };
+            let (set, joined, left) = (pick(40), pick(20), pick(20));
+            let left: Vec<u32> = left
+                .into_iter()
+                .filter(|i| joined.binary_search(i).is_err())
+                .collect();
+            let mut want: std::collections::BTreeSet<u32> = set.iter().copied().collect();
+            want.extend(&joined);
+            for i in &left {
+                want.remove(i);
+            }
+            let got = with_and_without(&set, &joined, &left);
+            assert_eq!(got, want.into_iter().collect::<Vec<_>>(), "case {case}");
         }
     }
 
