@@ -827,9 +827,6 @@ fn projection(
     }
     let one = r.results.iter().find(|t| t.ranks == 1);
     let t1 = one.map(|t| t.cpu_sum_seconds_per_window);
-    let fit = (project::fitted(&measured).iter()).fold((0.0, 0.0), |f, m| {
-        (f.0 + m.0 / windows, f.1 + m.1 / windows)
-    });
     let projected = project::project(&measured, targets, &net)
         .map_err(|e| anyhow::anyhow!(e))?
         .into_iter()
@@ -857,6 +854,11 @@ fn projection(
             (p, e)
         })
         .collect();
+    // (After `project`, which refuses measured counts whose collective
+    // schedules differ: the fit reads the same interval of each.)
+    let fit = (project::fitted(&measured).iter()).fold((0.0, 0.0), |f, m| {
+        (f.0 + m.0 / windows, f.1 + m.1 / windows)
+    });
     Ok(ProjectionReport {
         network: net,
         one_process_seconds_per_window: t1,

@@ -333,9 +333,10 @@ fn fit_nonnegative(points: &[(f64, f64)]) -> (f64, f64) {
 }
 
 /// The busiest rank's work in each interval fitted as `a + b / R` over the
-/// measured rank counts (the same collective schedule in each).
+/// measured rank counts (the same collective schedule in each: [`project`]
+/// checks it; intervals past the shortest schedule are left out here).
 pub fn fitted(measured: &[(usize, Vec<Interval>)]) -> Vec<(f64, f64)> {
-    let c = measured.first().map_or(0, |m| m.1.len());
+    let c = measured.iter().map(|m| m.1.len()).min().unwrap_or(0);
     (0..c)
         .map(|k| {
             let points: Vec<(f64, f64)> = (measured.iter())
