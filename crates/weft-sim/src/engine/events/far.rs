@@ -277,24 +277,26 @@ fn certify_in_runs<E: Executor>(
     runs.into_iter().flatten().collect()
 }
 
-/// Whether each of the stencils `keys` is far at the pass start `t0` (as
-/// [`FarSet::new`] decides it: certified through `first_internal` under
-/// caps of [`HEADROOM`] × its vertices' speeds), with the distance
-/// evaluated: over ranks with the units spread, each rank certifies a share
-/// of the candidates and the ranks all-gather the answers.
+/// Of each of the stencils `keys`, whether it is far at the pass start
+/// `t0` and then the tick its certificate ends (as [`FarSet::new`] decides
+/// it: certified through `first_internal` under caps of [`HEADROOM`] × its
+/// vertices' speeds), with the distance evaluated: over ranks with the
+/// units spread, each rank certifies a share of the candidates, the ranks
+/// all-gather the answers, and each builds the far stencils it watches
+/// from them ([`FarSet::of_certified`]).
 pub(super) fn far_at_start<E: Executor>(
     exec: &E,
     w: &World,
     keys: &[StencilKey],
     (t0, first_internal): (Tick, Tick),
-) -> Vec<(bool, f64)> {
+) -> Vec<(Option<Tick>, f64)> {
     let n = keys.len();
     let runs = exec.map(n.div_ceil(RENEW_RUN), &|r| {
         (keys[r * RENEW_RUN..((r + 1) * RENEW_RUN).min(n)].iter())
             .map(|key| {
                 let caps = key.v.map(|i| cap_of(w.v[i as usize]));
                 let (until, d) = certify(w, key.kind, &key.v, &caps, t0);
-                (until.is_some_and(|u| u > first_internal), d)
+                (until.filter(|&u| u > first_internal), d)
             })
             .collect::<Vec<_>>()
     });
@@ -312,10 +314,9 @@ impl FarSet {
     /// certified outside `eta_1` through the first internal tick after
     /// `t0` under caps of [`HEADROOM`] × their vertices' speeds. `mine`
     /// tells by tag which ones this rank keeps (the tag: a pack this rank
-    /// runs; over ranks with the units spread, the candidates are the far
-    /// stencils this rank watches, tagged with their index among every
-    /// rank's far stencils); only those are certified (the others are
-    /// returned as not far).
+    /// runs); only those are certified (the others are returned as not
+    /// far). (Over ranks with the units spread, the ranks certify shares
+    /// of the candidates instead: [`far_at_start`].)
     /// Returns the set and, per candidate, whether it is far.
     pub(super) fn new<E: Executor>(
         exec: &E,
@@ -334,23 +335,15 @@ impl FarSet {
                 }
             }
         }
-        let mut set = FarSet {
-            due: ByStep::new(t0, first_internal - t0),
-            cap,
-            base: vec![0; n],
-            fastest: vec![0.0; n],
-            added: vec![0; n],
-            pass_end,
-            ..Default::default()
-        };
         let mut is_far = vec![false; candidates.len()];
         // The certificates, on the executor in runs, then taken in order.
         let mine_key = |c: usize| {
             let (key, _, pack) = candidates[c];
             mine(pack).then_some(key)
         };
-        let certified = certify_in_runs(exec, w, candidates.len(), &mine_key, &set.cap, t0);
-        for (c, ((key, depth, pack), certificate)) in candidates.iter().zip(certified).enumerate() {
+        let certified = certify_in_runs(exec, w, candidates.len(), &mine_key, &cap, t0);
+        let mut far = Vec::new();
+        for (c, (&(key, depth, tag), certificate)) in candidates.iter().zip(certified).enumerate() {
             let Some((until, d)) = certificate else {
                 continue;
             };
@@ -359,10 +352,36 @@ impl FarSet {
                 continue;
             };
             is_far[c] = true;
+            far.push((key, depth, tag, until));
+        }
+        let set = Self::of_certified(w, far, (t0, first_internal, pass_end));
+        (set, is_far)
+    }
+
+    /// The far stencils `far` (key, depth, tag, and the tick its
+    /// certificate at the pass start `t0` ends, after `first_internal`; in
+    /// key order), certified already ([`FarSet::new`], or
+    /// [`far_at_start`] over ranks).
+    pub(super) fn of_certified(
+        w: &World,
+        far: Vec<(StencilKey, u32, u32, Tick)>,
+        (t0, first_internal, pass_end): (Tick, Tick, Tick),
+    ) -> Self {
+        let n = w.num_vertices();
+        let mut set = FarSet {
+            due: ByStep::new(t0, first_internal - t0),
+            cap: vec![f64::INFINITY; n],
+            base: vec![0; n],
+            fastest: vec![0.0; n],
+            added: vec![0; n],
+            pass_end,
+            ..Default::default()
+        };
+        for (key, depth, tag, until) in far {
             let f = set.key.len() as u32;
-            set.key.push(*key);
-            set.depth.push(*depth);
-            set.tag.push(*pack);
+            set.key.push(key);
+            set.depth.push(depth);
+            set.tag.push(tag);
             set.until.push(until);
             set.promoted.push(false);
             if until < pass_end {
@@ -370,7 +389,7 @@ impl FarSet {
             }
         }
         // The vertex index over the far stencils, and their vertices' caps
-        // (the others' back to +inf: nothing watches them).
+        // (the others' +inf: nothing watches them).
         set.offsets = vec![0; n + 1];
         for key in &set.key {
             for &i in &key.v {
@@ -389,16 +408,15 @@ impl FarSet {
             }
         }
         for i in 0..n {
-            if set.offsets[i] == set.offsets[i + 1] {
-                set.cap[i] = f64::INFINITY;
-            } else {
+            if set.offsets[i] < set.offsets[i + 1] {
+                set.cap[i] = cap_of(w.v[i]);
                 set.vertices.push(i as u32);
             }
         }
         let limit = RENEW_AFTER_BREAKPOINTS as usize;
         set.renew_at = vec![Vec::new(); limit + 1];
         set.renew_at[limit] = set.vertices.clone();
-        (set, is_far)
+        set
     }
 
     /// How many far stencils the pass started with.

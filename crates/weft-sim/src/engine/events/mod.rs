@@ -339,8 +339,9 @@ fn largest_first(costs: &[f64]) -> Vec<u32> {
 const HOME_SLACK: f64 = 0.1;
 
 /// **Collective** (an all-gather): whether each stencil of `keys` is far
-/// at the pass start ([`far::far_at_start`]), each rank certifying its
-/// contiguous share; what certifying evaluated is added to `checked`.
+/// at the pass start, and then the tick its certificate ends
+/// ([`far::far_at_start`]), each rank certifying its contiguous share;
+/// what certifying evaluated is added to `checked`.
 fn far_at_start_shared<E: crate::executor::Executor>(
     exec: &E,
     w: &World,
@@ -348,12 +349,16 @@ fn far_at_start_shared<E: crate::executor::Executor>(
     keys: &[StencilKey],
     (t0, first_internal, _): (Tick, Tick, Tick),
     checked: &mut Checked,
-) -> Result<Vec<bool>, SimError> {
+) -> Result<Vec<Option<Tick>>, SimError> {
     let (n, ranks) = (keys.len(), share.ranks);
     let range = |r: usize| r * n / ranks..(r + 1) * n / ranks;
     let mine = far::far_at_start(exec, w, &keys[range(share.rank)], (t0, first_internal));
+    // (far, distance, the certificate's end tick as the bits of a word)
     let words: Vec<DVec3> = (mine.iter())
-        .map(|&(far, d)| DVec3::new(f64::from(u8::from(far)), d, 0.0))
+        .map(|&(until, d)| {
+            let far = f64::from(u8::from(until.is_some()));
+            DVec3::new(far, d, f64::from_bits(until.unwrap_or(0)))
+        })
         .collect();
     let all = exec.all_gather_vectors(&words)?;
     let mut is_far = Vec::with_capacity(n);
@@ -367,7 +372,7 @@ fn far_at_start_shared<E: crate::executor::Executor>(
         }
         for c in part {
             checked.saw(c.y);
-            is_far.push(c.x == 1.0);
+            is_far.push((c.x == 1.0).then(|| c.z.to_bits()));
         }
     }
     Ok(is_far)
@@ -377,13 +382,14 @@ fn far_at_start_shared<E: crate::executor::Executor>(
 /// placed near its home by its stencils, and each far stencil watched by
 /// the rank of the unit of its lowest dynamic vertex in a unit (else by
 /// its vertices' home). Returns the far stencils this rank watches (each
-/// tagged with its index in `far_all`) and the spread.
-fn spread_units<E: crate::executor::Executor>(
-    exec: &E,
+/// tagged with its index in `far_all`, with its certificate's end from
+/// `until`, as all-gathered at the pass start) and the spread.
+fn spread_units(
     w: &World,
     share: &RankShare,
     specs: &[UnitSpec],
     far_all: Vec<(StencilKey, u32)>,
+    until: &[Tick],
     pass: (Tick, Tick, Tick),
 ) -> (FarSet, Spread) {
     let cost: Vec<f64> = specs.iter().map(|s| s.1.len() as f64).collect();
@@ -406,13 +412,11 @@ fn spread_units<E: crate::executor::Executor>(
         })
         .collect();
     let me = share.rank as u32;
-    let watched: Vec<(StencilKey, u32, u32)> = (far_all.iter().zip(&watcher).enumerate())
+    let watched: Vec<(StencilKey, u32, u32, Tick)> = (far_all.iter().zip(&watcher).enumerate())
         .filter(|(_, (_, &r))| r == me)
-        .map(|(g, (&(key, depth), _))| (key, depth, g as u32))
+        .map(|(g, (&(key, depth), _))| (key, depth, g as u32, until[g]))
         .collect();
-    // (Certified again: the same certificates, from the same caps.)
-    let (far, is_far) = FarSet::new(exec, w, &watched, &|_| true, pass, &mut Checked::default());
-    debug_assert!(is_far.iter().all(|&f| f), "a far stencil certified alike");
+    let far = FarSet::of_certified(w, watched, pass);
     let spread = Spread {
         me,
         rank_of,
@@ -717,14 +721,18 @@ impl<E: Executor> Engine<E> {
                 .map(|&a| (active[a].0, active[a].1, pack_of[a]))
                 .collect();
             let pass = (t0, t0 + h_el, t1);
+            // (spread: each candidate's certificate end, when far)
+            let mut ends: Vec<Option<Tick>> = Vec::new();
             let (far, is_far) = match &self.share {
                 Some(share) if spread => {
                     // (a share each, all-gathered: the units, and so the
                     // far stencils each rank watches, follow from all)
                     let keys: Vec<StencilKey> = listed.iter().map(|c| c.0).collect();
-                    let is_far =
-                        far_at_start_shared(&self.exec, w, share, &keys, pass, &mut checked)?;
-                    (FarSet::default(), is_far)
+                    ends = far_at_start_shared(&self.exec, w, share, &keys, pass, &mut checked)?;
+                    (
+                        FarSet::default(),
+                        ends.iter().map(Option::is_some).collect(),
+                    )
                 }
                 _ => FarSet::new(&self.exec, w, &listed, &mine, pass, &mut checked),
             };
@@ -751,11 +759,11 @@ impl<E: Executor> Engine<E> {
             let (far, spread) = match self.share.as_ref().filter(|_| spread) {
                 None => (far, None),
                 Some(share) => {
-                    let far_all: Vec<(StencilKey, u32)> = (candidates.iter().zip(&is_far))
-                        .filter(|p| *p.1)
-                        .map(|(&a, _)| active[a])
-                        .collect();
-                    let (far, spread) = spread_units(&self.exec, w, share, &specs, far_all, pass);
+                    let (far_all, until): (Vec<(StencilKey, u32)>, Vec<Tick>) =
+                        (candidates.iter().zip(&ends))
+                            .filter_map(|(&a, end)| end.map(|until| (active[a], until)))
+                            .unzip();
+                    let (far, spread) = spread_units(w, share, &specs, far_all, &until, pass);
                     reads.extend(spread.reads(&specs, active, w));
                     (far, Some(spread))
                 }
