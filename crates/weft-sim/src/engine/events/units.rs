@@ -57,9 +57,14 @@ pub(crate) struct FarCounts {
 /// The units this rank runs in a pass.
 #[derive(Debug, Default)]
 pub(super) struct Units {
-    /// Each unit, locked by the task that runs it (an emptied one, merged
-    /// into another, stays as an empty island that never runs).
-    islands: Vec<Mutex<Island>>,
+    /// Each unit that runs here, locked by the task that runs it; `None`
+    /// for a unit another rank runs and for one emptied into another by a
+    /// merge. (Boxed: spread over ranks a rank runs a share of the units,
+    /// and an inline island per unit of every rank was 744 bytes each,
+    /// allocated and first touched at every pass start: on the 100k
+    /// twister over 8 simulated ranks, page faults for about 60 ms of each
+    /// rank's pass.)
+    islands: Vec<UnitSlot>,
     /// Whether a unit still runs (not merged into another).
     live: Vec<bool>,
     /// The live units that run here, ascending: what a segment's
@@ -159,6 +164,15 @@ pub(super) struct Merged {
 /// (key, depth; in key order).
 pub(super) type UnitSpec = (Vec<u32>, Vec<(StencilKey, u32)>);
 
+/// A unit's island where it runs here (see [`Units::islands`]).
+type UnitSlot = Mutex<Option<Box<Island>>>;
+
+/// The island in a unit's slot: the caller runs or reads a unit that runs
+/// here.
+fn running(slot: &mut Option<Box<Island>>) -> &mut Island {
+    slot.as_mut().expect("a unit that runs here")
+}
+
 impl Units {
     /// The units `specs`, built from the world's state at the pass start
     /// `t0` (on the executor), and the far stencils watched beside them
@@ -231,15 +245,13 @@ impl Units {
                 })
                 .collect();
         }
-        let islands = exec.map(
-            specs.len(),
-            &|u| match specs[u].lock().expect("a spec").take() {
-                Some((vertices, members)) => {
-                    Mutex::new(Island::of(vertices, members, w, t0, &kinematic))
-                }
-                None => Mutex::default(),
-            },
-        );
+        let islands = exec.map(specs.len(), &|u| {
+            let spec = specs[u].lock().expect("a spec").take();
+            let island = spec.map(|(vertices, members)| {
+                Box::new(Island::of(vertices, members, w, t0, &kinematic))
+            });
+            Mutex::new(island)
+        });
         let pending = (
             FarCounts {
                 // (spread over ranks: every rank's)
@@ -503,7 +515,8 @@ impl Units {
         let islands = &self.islands;
         let caps = &self.caps;
         let rerun = exec.map(here.len(), &|k| {
-            let mut island = islands[here[k] as usize].lock().expect("a unit's lock");
+            let mut slot = islands[here[k] as usize].lock().expect("a unit's lock");
+            let island = running(&mut slot);
             let out = island.run_segment(exec, &sh, (s, e), internal);
             (out, (here[k], island.report(caps)))
         });
@@ -546,7 +559,7 @@ impl Units {
     fn events_of(&self, u: usize) -> u64 {
         let depths: Vec<u32> = match &self.remote.get(u).and_then(Option::as_ref) {
             Some(spec) => spec.1.iter().map(|m| m.1).collect(),
-            None => (self.islands[u].lock().expect("a unit").members())
+            None => (running(&mut self.islands[u].lock().expect("a unit")).members())
                 .map(|m| m.1)
                 .collect(),
         };
@@ -853,7 +866,7 @@ impl Units {
             Island::of(vertices, members, w, s, kinematic)
         });
         for ((slot, _), island) in built.iter().zip(islands) {
-            *self.islands[*slot as usize].lock().expect("a unit") = island;
+            *self.islands[*slot as usize].lock().expect("a unit") = Some(Box::new(island));
         }
     }
 
@@ -863,7 +876,8 @@ impl Units {
         if let Some(spec) = self.remote.get_mut(u).and_then(Option::take) {
             return spec;
         }
-        let island = std::mem::take(&mut *self.islands[u].lock().expect("a unit"));
+        let island = (self.islands[u].lock().expect("a unit").take())
+            .expect("a unit that runs here or whose spec is kept here");
         (island.vertices().to_vec(), island.members().collect())
     }
 
@@ -880,7 +894,7 @@ impl Units {
             let u = u as usize;
             let stencils = match self.remote.get(u).and_then(Option::as_ref) {
                 Some(spec) => spec.1.len(),
-                None => self.islands[u].lock().expect("a unit").stencils(),
+                None => running(&mut self.islands[u].lock().expect("a unit")).stencils(),
             };
             *weight.entry(self.rank_of[u]).or_default() += stencils;
         }
@@ -1009,7 +1023,7 @@ fn with_caps<'a>(
 fn run_bins<E: Executor>(
     exec: &E,
     shared: &Shared<'_>,
-    (islands, visit, cost): (&[Mutex<Island>], &[u32], &mut [f64]),
+    (islands, visit, cost): (&[UnitSlot], &[u32], &mut [f64]),
     (skipped, caps): (&[u32], &[AtomicU64]),
     (s, e): (Tick, Tick),
     internal: bool,
@@ -1051,7 +1065,8 @@ fn run_bins<E: Executor>(
         let _span = trace::span_with("island task", "islands", bins[b].len() as u64);
         (bins[b].iter())
             .map(|&k| {
-                let mut island = islands[k as usize].lock().expect("an island's lock");
+                let mut slot = islands[k as usize].lock().expect("an island's lock");
+                let island = running(&mut slot);
                 island.catch_up(skipped[k as usize]);
                 let out = island.run_segment(exec, shared, (s, e), internal);
                 (k, out, island.report(caps))
