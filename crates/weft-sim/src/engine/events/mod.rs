@@ -705,8 +705,15 @@ impl<E: Executor> Engine<E> {
         let h_el = w.lattice.internal_step();
         let mut checked = Checked::default();
         // Over ranks: every vertex a unit's stencils read, with the unit's
-        // rank (`u32::MAX`: every rank).
+        // rank (`u32::MAX`: every rank); only the reads that concern this
+        // rank are kept (by it, or of a vertex it owns: all that
+        // `RankShare::pass` reads; every rank's reads were 4 MB a pass on
+        // the 100k twister, grown push by push on every rank).
         let mut reads: Vec<(u32, u32)> = Vec::new();
+        let concerns_me = |&(i, r): &(u32, u32)| match &self.share {
+            Some(share) => r == me || r == u32::MAX || share.owns(i as usize),
+            None => false,
+        };
         let (specs, far, rank_of) = if split {
             let mut pack_of = vec![0u32; active.len()];
             for k in 0..packs.len() {
@@ -764,7 +771,7 @@ impl<E: Executor> Engine<E> {
                             .filter_map(|(&a, end)| end.map(|until| (active[a], until)))
                             .unzip();
                     let (far, spread) = spread_units(w, share, &specs, far_all, &until, pass);
-                    reads.extend(spread.reads(&specs, active, w));
+                    reads.extend(spread.reads(&specs, active, w).filter(concerns_me));
                     (far, Some(spread))
                 }
             };
@@ -790,6 +797,7 @@ impl<E: Executor> Engine<E> {
                     (packs.stencils_of(k).iter())
                         .flat_map(move |&a| active[a as usize].0.v.map(|i| (i, r)))
                 })
+                .filter(concerns_me)
                 .collect();
         }
         // The trajectories' start (every vertex's first breakpoint: a
