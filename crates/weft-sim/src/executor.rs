@@ -197,6 +197,20 @@ pub trait Executor: Sync {
         Ok((vec![head], parts))
     }
 
+    /// **Collective over ranks.** [`Executor::all_to_all`] for parts of
+    /// vectors, sent as raw bits (eight little-endian bytes per
+    /// coordinate, as [`Executor::all_gather_vectors`]): what travels at
+    /// every internal tick (a generic encoding of the new velocities was
+    /// more than half of their exchange's cost). An empty part sends
+    /// nothing and arrives empty; no overlap runs in the wait.
+    fn all_to_all_vectors(
+        &self,
+        head: Vec<u64>,
+        parts: Vec<Vec<glam::DVec3>>,
+    ) -> Result<(Vec<Vec<u64>>, Vec<Vec<glam::DVec3>>), CommError> {
+        Ok((vec![head], parts))
+    }
+
     /// **Collective over ranks.** Every rank's `mine`, in rank order (this
     /// rank's included), sent as raw bits (eight little-endian bytes per
     /// coordinate): the exchanges of every internal tick

@@ -476,12 +476,10 @@ impl RankShare {
     ) -> Result<(Option<usize>, usize), CommError> {
         // The head: `bad` (none: all ones) and `changed`.
         let flag = bad.map_or(u64::MAX, |b| b as u64);
-        let parts: Vec<Option<Vec<DVec3>>> = (pass.send.iter())
-            .map(|list| {
-                (!list.is_empty()).then(|| list.iter().map(|&k| v_new[k as usize]).collect())
-            })
+        let parts: Vec<Vec<DVec3>> = (pass.send.iter())
+            .map(|list| list.iter().map(|&k| v_new[k as usize]).collect())
             .collect();
-        let (heads, parts) = exec.all_to_all(vec![flag, changed as u64], parts, &mut || false)?;
+        let (heads, parts) = exec.all_to_all_vectors(vec![flag, changed as u64], parts)?;
         if heads.len() != self.ranks || parts.len() != self.ranks {
             return Err(CommError(format!(
                 "rank {}: an exchange brought {} heads for {} ranks",
@@ -508,7 +506,7 @@ impl RankShare {
                 continue;
             }
             let list = &pass.recv[j];
-            let values = part.unwrap_or_default();
+            let values = part;
             if values.len() != list.len() {
                 return Err(CommError(format!(
                     "rank {}: rank {j} sent {} velocities for {}",
