@@ -379,6 +379,23 @@ fn bench_projects_more_ranks_from_the_replayed_steps() {
     }
     let fit = fast["fit"].as_array().unwrap();
     assert!(fit.iter().all(|f| f.as_f64().unwrap() >= 0.0), "{fast}");
+    // The fit and the imbalance by the site of the collective ending each
+    // interval: the events stage's exchanges are named, the sites' sums
+    // are the whole fit's, largest Σ a first.
+    let sites = fast["by_site"].as_array().unwrap();
+    let names: Vec<&str> = sites.iter().map(|s| s["site"].as_str().unwrap()).collect();
+    assert!(names.contains(&"events: new velocities"), "{names:?}");
+    assert!(names.contains(&"events: units' outputs"), "{names:?}");
+    let sum = |k: usize| -> f64 { sites.iter().map(|s| s["fit"][k].as_f64().unwrap()).sum() };
+    for k in 0..2 {
+        let whole = fit[k].as_f64().unwrap();
+        assert!((sum(k) - whole).abs() <= 1e-9 * whole.max(1.0), "{fast}");
+    }
+    let a: Vec<f64> = sites
+        .iter()
+        .map(|s| s["fit"][0].as_f64().unwrap())
+        .collect();
+    assert!(a.windows(2).all(|w| w[0] >= w[1]), "{a:?}");
     let projected = fast["projected"].as_array().unwrap();
     let ranks: Vec<u64> = projected
         .iter()

@@ -141,6 +141,42 @@ impl Drop for SpanGuard {
     }
 }
 
+thread_local! {
+    static SITE: Cell<&'static str> = const { Cell::new("") };
+}
+
+/// Names the collectives and exchanges the calling thread starts until the
+/// guard drops (an inner site names them while it lives): a rank that
+/// records its steps for `weft bench --project` tags each with it, so the
+/// work before each collective, and the ranks' imbalance there, can be told
+/// by where the run was. Always on: a thread-local store.
+#[inline]
+pub fn site(name: &'static str) -> SiteGuard {
+    SiteGuard {
+        outer: SITE.with(|s| s.replace(name)),
+        _not_send: std::marker::PhantomData,
+    }
+}
+
+/// The calling thread's innermost site ("" outside every site).
+#[inline]
+pub fn current_site() -> &'static str {
+    SITE.with(Cell::get)
+}
+
+/// Restores the enclosing site when dropped ([`site`]).
+#[must_use = "the site lasts while the guard lives"]
+pub struct SiteGuard {
+    outer: &'static str,
+    _not_send: std::marker::PhantomData<*const ()>,
+}
+
+impl Drop for SiteGuard {
+    fn drop(&mut self) {
+        SITE.with(|s| s.set(self.outer));
+    }
+}
+
 /// Takes the recorded spans (sorted by track, then start), the track names,
 /// and the number of spans dropped over the cap; recording state is kept.
 pub fn take() -> (Vec<Span>, Vec<String>, u64) {
@@ -199,6 +235,25 @@ pub fn write_chrome_json(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sites_nest_per_thread_and_restore_the_enclosing_one() {
+        assert_eq!(current_site(), "");
+        {
+            let _stage = site("events");
+            assert_eq!(current_site(), "events");
+            {
+                let _inner = site("events: velocities");
+                assert_eq!(current_site(), "events: velocities");
+                // Another thread has its own.
+                std::thread::spawn(|| assert_eq!(current_site(), ""))
+                    .join()
+                    .unwrap();
+            }
+            assert_eq!(current_site(), "events");
+        }
+        assert_eq!(current_site(), "");
+    }
 
     // One test touches the process-wide recorder (tests run in parallel).
     #[test]

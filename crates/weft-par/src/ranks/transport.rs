@@ -220,6 +220,9 @@ pub struct SyncStep {
     /// All-to-all and exchange: the bytes received, per peer, in the order
     /// received.
     pub received: Vec<(u32, u64)>,
+    /// Where the rank was when it began the step
+    /// ([`weft_sim::trace::site`]; "" outside every site).
+    pub site: &'static str,
 }
 
 /// `overlap` (one piece of work per call, `false` once none is left) as
@@ -340,6 +343,7 @@ impl ChannelTransport {
                 head_bytes,
                 sent,
                 received,
+                site: weft_sim::trace::current_site(),
             });
         }
     }

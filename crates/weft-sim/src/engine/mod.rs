@@ -446,17 +446,20 @@ impl<E: Executor> Engine<E> {
         let resolved = self.world.schedule.resolved_depth();
         self.place_partitions_by_load()?;
         let clock = StageClock::start(&self.exec);
+        let site = trace::site("predict");
         let predicted = if self.world.contact.predict {
             self.predict_layers(resolved)?
         } else {
             Predicted::default()
         };
+        drop(site);
         (stages.predict, stages.cpu.predict, stages.sent.predict) = clock.stop(&self.exec);
         let mut detected_layers = 0u64;
         let mut island_cpu = 0.0;
         loop {
             let clock = StageClock::start(&self.exec);
             let events_span = trace::span_with("events", "pass", rollbacks as u64);
+            let site = trace::site("events");
             let mut counts = match self.run_events(t0, t1) {
                 Ok(c) => c,
                 Err(e) => {
@@ -464,7 +467,7 @@ impl<E: Executor> Engine<E> {
                     return Err(e);
                 }
             };
-            drop(events_span);
+            drop((events_span, site));
             let stage = (
                 &mut stages.events,
                 &mut stages.cpu.events,
@@ -479,6 +482,7 @@ impl<E: Executor> Engine<E> {
             }
             let clock = StageClock::start(&self.exec);
             let broad_span = trace::span("broad");
+            let site = trace::site("broad");
             let candidates = {
                 let w = &self.world;
                 self.broad.candidates_on(
@@ -489,7 +493,7 @@ impl<E: Executor> Engine<E> {
                     0.5 * w.schedule.eta_1,
                 )
             };
-            drop(broad_span);
+            drop((broad_span, site));
             let stage = (
                 &mut stages.broad,
                 &mut stages.cpu.broad,
@@ -499,6 +503,7 @@ impl<E: Executor> Engine<E> {
             let clock = StageClock::start(&self.exec);
             let count = candidates.as_ref().map_or(0, |c| c.len() as u64);
             let narrow_span = trace::span_with("narrow", "candidates", count);
+            let site = trace::site("narrow");
             let found = candidates.and_then(|c| Ok((self.narrow_phase(&c)?, c)));
             let (reported, candidates) = match found {
                 Ok(found) => found,
@@ -507,7 +512,7 @@ impl<E: Executor> Engine<E> {
                     return Err(e.into());
                 }
             };
-            drop(narrow_span);
+            drop((narrow_span, site));
             let stage = (
                 &mut stages.narrow,
                 &mut stages.cpu.narrow,
@@ -537,6 +542,7 @@ impl<E: Executor> Engine<E> {
             if reported.is_empty() {
                 let clock = StageClock::start(&self.exec);
                 let _commit_span = trace::span("commit");
+                let _site = trace::site("commit");
                 let committed = (self.commit(&candidates, &predicted))
                     .and_then(|done| Ok((done, self.stats_sums(&candidates)?)));
                 let ((retired, unreached), sums) = match committed {

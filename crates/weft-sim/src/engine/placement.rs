@@ -55,6 +55,7 @@ impl<E: Executor> Engine<E> {
             return Ok(());
         };
         let mine = [DVec3::new(load.islands, load.rest, 0.0)];
+        let _site = crate::trace::site("placement by load");
         let all = self.exec.all_gather_vectors(&mine)?;
         let mut islands = Vec::with_capacity(all.len());
         let mut rest = Vec::with_capacity(all.len());

@@ -363,6 +363,10 @@ pub struct ProjectionReport {
     /// that does not shrink with the ranks (Σ a) and the work shared (Σ b,
     /// the busiest rank's is Σ b / R).
     pub fit: (f64, f64),
+    /// The fit and the imbalance at the largest measured count, by the
+    /// site of the collective ending each interval (seconds per window;
+    /// `project::by_site`), largest Σ a first.
+    pub by_site: Vec<project::SiteShare>,
     /// Each asked rank count: the model's seconds per window (and its
     /// parts), and T1 / (R · T(R)).
     pub projected: Vec<(project::Projected, Option<f64>)>,
@@ -859,12 +863,21 @@ fn projection(
     let fit = (project::fitted(&measured).iter()).fold((0.0, 0.0), |f, m| {
         (f.0 + m.0 / windows, f.1 + m.1 / windows)
     });
+    let by_site = (project::by_site(&measured).into_iter())
+        .map(|mut s| {
+            s.fit = (s.fit.0 / windows, s.fit.1 / windows);
+            s.most /= windows;
+            s.mean /= windows;
+            s
+        })
+        .collect();
     Ok(ProjectionReport {
         network: net,
         one_process_seconds_per_window: t1,
         replayed,
         between_collectives: between,
         fit,
+        by_site,
         projected,
     })
 }
@@ -1462,6 +1475,30 @@ fn table(r: &BenchReport) -> String {
             ms(p.fit.0),
             ms(p.fit.1)
         );
+        if let Some(largest) = p.replayed.iter().map(|r| r.0).max() {
+            let _ = writeln!(
+                s,
+                "  by the site of the collective ending each interval (ms a window; imbalance at \
+                 {largest} ranks):\n  {:<34} {:>9} {:>8} {:>8} {:>9}",
+                "site", "intervals", "Σ a", "Σ b", "imbalance"
+            );
+            for site in &p.by_site {
+                let name = if site.site.is_empty() {
+                    "(outside every site)"
+                } else {
+                    site.site
+                };
+                let _ = writeln!(
+                    s,
+                    "  {:<34} {:>9.0} {:>8} {:>8} {:>9}",
+                    name,
+                    site.intervals as f64 / r.windows as f64,
+                    ms(site.fit.0),
+                    ms(site.fit.1),
+                    ratio((site.mean > 0.0).then(|| site.most / site.mean))
+                );
+            }
+        }
         let _ = writeln!(
             s,
             "  ranks  ms/window  work  all-gathers  point-to-point  efficiency (T1 = {} ms)",

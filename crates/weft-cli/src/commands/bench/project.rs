@@ -244,6 +244,9 @@ pub struct Interval {
     /// received).
     pub messages: f64,
     pub bytes: f64,
+    /// Where the ranks were when they began the ending collective
+    /// (`weft_sim::trace::site`; as the first rank saw it).
+    pub site: &'static str,
 }
 
 /// The ranks' steps cut at their collectives (every rank must have the same
@@ -281,6 +284,9 @@ pub fn intervals(steps: &[Vec<SyncStep>]) -> Result<Vec<Interval>, String> {
                 }
             }
             if s.collective {
+                if r == 0 {
+                    out[k].site = s.site;
+                }
                 let kind = s.head_bytes.is_some();
                 if *kinds[k].get_or_insert(kind) != kind {
                     return Err(format!(
@@ -364,6 +370,54 @@ pub fn between_collectives(intervals: &[Interval]) -> (f64, f64) {
             mean + iv.work.iter().sum::<f64>() / n,
         )
     })
+}
+
+/// The intervals that end at the collectives of one site, over the
+/// measured rank counts.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SiteShare {
+    /// The site (`weft_sim::trace::site`; "" outside every site).
+    pub site: &'static str,
+    /// How many intervals end there.
+    pub intervals: usize,
+    /// The fit of their busiest rank's work, summed ([`fitted`]; seconds):
+    /// what does not shrink with the ranks (Σ a) and what is shared (Σ b).
+    pub fit: (f64, f64),
+    /// At the largest measured rank count, summed over them: the busiest
+    /// rank's work and the mean rank's (seconds; [`between_collectives`]).
+    pub most: f64,
+    pub mean: f64,
+}
+
+/// [`fitted`] and [`between_collectives`] told apart by the site of the
+/// collective that ends each interval: where the work that does not shrink
+/// with the ranks, and the ranks' imbalance, are. Sorted by Σ a, largest
+/// first (then by site).
+pub fn by_site(measured: &[(usize, Vec<Interval>)]) -> Vec<SiteShare> {
+    let fit = fitted(measured);
+    let Some((_, largest)) = measured.iter().max_by_key(|m| m.0) else {
+        return Vec::new();
+    };
+    let mut sites: std::collections::BTreeMap<&'static str, SiteShare> = Default::default();
+    for (k, (a, b)) in fit.into_iter().enumerate() {
+        let iv = &largest[k];
+        let (most, mean) = between_collectives(std::slice::from_ref(iv));
+        let share = sites.entry(iv.site).or_insert(SiteShare {
+            site: iv.site,
+            intervals: 0,
+            fit: (0.0, 0.0),
+            most: 0.0,
+            mean: 0.0,
+        });
+        share.intervals += 1;
+        share.fit.0 += a;
+        share.fit.1 += b;
+        share.most += most;
+        share.mean += mean;
+    }
+    let mut out: Vec<SiteShare> = sites.into_values().collect();
+    out.sort_by(|x, y| y.fit.0.total_cmp(&x.fit.0).then(x.site.cmp(y.site)));
+    out
 }
 
 /// One projected rank count.
@@ -453,6 +507,7 @@ mod tests {
             head_bytes: None,
             sent: sent.to_vec(),
             received: received.to_vec(),
+            site: "",
         }
     }
 
@@ -583,6 +638,48 @@ mod tests {
         assert!((mean - 40e-6).abs() < 1e-15, "{mean}");
         // The replay pays the busiest rank of each interval.
         assert!(replay(&steps, &NET).unwrap() >= most);
+    }
+
+    #[test]
+    fn by_site_tells_the_fit_and_the_imbalance_apart_by_the_ending_collective() {
+        // Three collectives, at sites "a", "b", "a"; per rank count R, each
+        // rank's work (µs) before each.
+        let run = |work: &[[u64; 3]]| -> Vec<Vec<SyncStep>> {
+            (work.iter())
+                .map(|w| {
+                    (w.iter().zip(["a", "b", "a"]))
+                        .map(|(&us, site)| SyncStep {
+                            site,
+                            ..step(us, true, &[(0, 8)], &[])
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        // Busiest rank: interval 0 30 → 20 µs (a = 10, b = 40), interval 1
+        // 14 → 14 (a = 14, b = 0), interval 2 12 → 6 (a = 0, b = 24).
+        let two = run(&[[30, 14, 12], [10, 14, 0]]);
+        let four = run(&[[20, 14, 6], [10, 14, 6], [10, 14, 6], [0, 14, 6]]);
+        let measured = vec![
+            (2, intervals(&two).unwrap()),
+            (4, intervals(&four).unwrap()),
+        ];
+        assert_eq!(measured[1].1[1].site, "b");
+        let sites = by_site(&measured);
+        let close = |x: f64, us: f64| (x - us * 1e-6).abs() < 1e-12;
+        assert_eq!(sites.len(), 2);
+        // Largest Σ a first.
+        let (b, a) = (&sites[0], &sites[1]);
+        assert_eq!((b.site, b.intervals, a.site, a.intervals), ("b", 1, "a", 2));
+        assert!(close(b.fit.0, 14.0) && close(b.fit.1, 0.0), "{b:?}");
+        assert!(close(a.fit.0, 10.0) && close(a.fit.1, 64.0), "{a:?}");
+        // At 4 ranks: "a" waits for 20 + 6 µs against a mean of 10 + 6.
+        assert!(close(a.most, 26.0) && close(a.mean, 16.0), "{a:?}");
+        assert!(close(b.most, 14.0) && close(b.mean, 14.0), "{b:?}");
+        // The sites' sums are the whole fit's and the whole imbalance's.
+        let whole = between_collectives(&measured[1].1);
+        assert!((whole.0 - (a.most + b.most)).abs() < 1e-15);
+        assert!((whole.1 - (a.mean + b.mean)).abs() < 1e-15);
     }
 
     #[test]

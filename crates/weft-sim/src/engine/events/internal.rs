@@ -105,6 +105,7 @@ impl<E: Executor> Engine<E> {
                 };
                 run(&mut ws.out, &split(&share.boundary_partition));
                 let interior = split(&share.interior_partition);
+                let _site = trace::site("events: internal forces' slots");
                 share.exchange_slots(exec, &mut ws.out, &mut |out| run(out, &interior))?;
             }
         }
@@ -183,6 +184,7 @@ impl<E: Executor> Engine<E> {
                         .filter(|&i| v_new[i] != w.v[i])
                         .count()
                 };
+                let _site = trace::site("events: new velocities");
                 let (bad, changed) = share.exchange_velocities(
                     &self.exec,
                     &ws.pass_share,

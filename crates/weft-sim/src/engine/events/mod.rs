@@ -360,6 +360,7 @@ fn far_at_start_shared<E: crate::executor::Executor>(
             DVec3::new(far, d, f64::from_bits(until.unwrap_or(0)))
         })
         .collect();
+    let _site = trace::site("events: pass start's far stencils");
     let all = exec.all_gather_vectors(&words)?;
     let mut is_far = Vec::with_capacity(n);
     for (r, part) in all.iter().enumerate() {
@@ -584,6 +585,7 @@ impl<E: Executor> Engine<E> {
         let _end = trace::span("pass end");
         if let Some(share) = &self.share {
             let w = &mut self.world;
+            let _site = trace::site("events: pass end's states");
             share.gather_states(&self.exec, &mut w.x, &mut w.v, &mut w.tau, &mut self.traj)?;
         }
         self.drift_to(end, t0)?;
@@ -921,7 +923,9 @@ impl<E: Executor> Engine<E> {
         let spread = self.ws.units.spread();
         if spread {
             let (promote, checked) = (self.ws.units).renew(&self.exec, &self.world, (s, e));
+            let site = trace::site("events: promotions before a segment");
             let (promote, checked) = self.agree(promote, checked)?;
+            drop(site);
             let share = self.share.as_ref().expect("over ranks");
             let homes = (&share.reference_owner[..], &share.owner[..]);
             let moves = (self.ws.units).promote_agreed(&promote, checked, &self.world, homes);
@@ -993,7 +997,9 @@ impl<E: Executor> Engine<E> {
             seconds += clock.elapsed().as_secs_f64();
             next < calm.partitions.len() + runs
         };
+        let site = trace::site("events: units' outputs");
         let (heads, received) = exec.all_to_all(totals.words(), parts, &mut calm_piece)?;
+        drop(site);
         counts.internal_seconds += seconds;
         let mut all = SegmentTotals::summed(&heads, me as usize)?;
         let mut outputs = outputs;
@@ -1038,7 +1044,9 @@ impl<E: Executor> Engine<E> {
                 let added = here.chain(theirs.iter().flat_map(|o| o.far_added.iter().copied()));
                 (self.ws.units).check(&self.world, (s, e), fast, added)
             };
+            let site = trace::site("events: promotions after a check");
             let (promote, last) = self.agree(promote, last)?;
+            drop(site);
             let share = self.share.as_ref().expect("over ranks");
             let homes = (&share.reference_owner[..], &share.owner[..]);
             let merged = (self.ws.units).check_agreed(&promote, last, &self.world, homes);
@@ -1065,6 +1073,7 @@ impl<E: Executor> Engine<E> {
             own.extend(rerun);
             own.sort_unstable_by_key(|o| o.0);
             let mine = SegmentTotals::of(own.iter().map(|o| &o.1));
+            let _site = trace::site("events: rerun units' outputs");
             let (heads, received) = self.exec.all_to_all(mine.words(), parts, &mut || false)?;
             totals = SegmentTotals::summed(&heads, me)?;
             theirs.extend(from_peers(received, me));
@@ -1151,6 +1160,7 @@ impl<E: Executor> Engine<E> {
         let lengths: Vec<(usize, usize)> = (recvs.iter())
             .map(|(&peer, list)| (peer, 7 * list.len()))
             .collect();
+        let _site = trace::site("events: moved units' vertices");
         let received =
             (self.exec).exchange_words(sends.into_iter().collect(), &lengths, &mut || {})?;
         for ((_, list), words) in recvs.iter().zip(received) {
