@@ -24,6 +24,7 @@ impl<E: Executor> Engine<E> {
     pub(super) fn commit(
         &mut self,
         candidates: &[StencilKey],
+        tested_on: &[u32],
         predicted: &Predicted,
     ) -> Result<(u64, u64), CommError> {
         const TASK: usize = 64;
@@ -32,24 +33,28 @@ impl<E: Executor> Engine<E> {
             .collect();
         // Each stencil's new state depends on its own certificates only, so
         // the stencils are decided on the executor and applied in key order.
-        // Tasks are runs of entries; each stencil is decided on a rank that
-        // holds one of its vertices' breakpoints (`deciding_ranks`; on one
-        // memory every vertex is held by rank 0). Only the stencils among
-        // the candidates are certified again, so only their polylines are
-        // read — over ranks, fetched when held elsewhere.
+        // Tasks are runs of entries, each decided on one rank
+        // (`deciding_ranks`; on one memory all on rank 0). Only the stencils
+        // among the candidates are certified again, so only their polylines
+        // are read: over ranks each is decided where the narrow phase
+        // tested it (`tested_on`), which holds them or fetched them for the
+        // window, so nothing travels, and the narrow phase's balance of the
+        // same certificates holds for them too.
         let ranks = self.exec.ranks();
         let holders = self.traj.holders();
-        // Both in key order: one merge walk.
+        // Per entry, its index among the candidates (both in key order: one
+        // merge walk).
         debug_assert!(candidates.windows(2).all(|p| p[0] < p[1]));
-        let mut rest = candidates.iter().peekable();
-        let near: Vec<bool> = (entries.iter())
+        let mut rest = candidates.iter().enumerate().peekable();
+        let candidate: Vec<Option<u32>> = (entries.iter())
             .map(|(key, _)| {
-                while rest.next_if(|c| *c < key).is_some() {}
-                rest.peek() == Some(&key)
+                while rest.next_if(|c| c.1 < key).is_some() {}
+                rest.peek().filter(|c| c.1 == key).map(|c| c.0 as u32)
             })
             .collect();
+        let near: Vec<bool> = candidate.iter().map(Option::is_some).collect();
         let keys: Vec<&StencilKey> = entries.iter().map(|(k, _)| k).collect();
-        let by_rank = deciding_ranks(&keys, &near, holders, ranks);
+        let by_rank = deciding_ranks(&keys, &candidate, tested_on, holders, ranks);
         let mut runs: Vec<&[usize]> = Vec::new();
         let mut owner: Vec<u32> = Vec::new();
         for (r, mine) in by_rank.iter().enumerate() {
@@ -57,15 +62,6 @@ impl<E: Executor> Engine<E> {
                 runs.push(run);
                 owner.push(r as u32);
             }
-        }
-        if ranks > 1 {
-            let mut reads = vec![Vec::new(); ranks];
-            for (run, &r) in runs.iter().zip(&owner) {
-                for &n in run.iter().filter(|&&n| near[n]) {
-                    reads[r as usize].extend_from_slice(&entries[n].0.v);
-                }
-            }
-            self.fetch_trajectories(reads)?;
         }
         let w = &self.world;
         let traj = &self.traj;
@@ -133,36 +129,26 @@ impl<E: Executor> Engine<E> {
     }
 }
 
-/// The entries (stencil keys, in key order) each rank decides: a stencil
-/// goes to a rank holding one of its vertices' breakpoints, the only one
-/// where a single rank holds them all; else the one with the fewest
-/// stencils to certify (`near`) so far, counting first every rank's own
-/// (ties: the lower rank). A contact region on a border is so shared
-/// between the ranks beside it (the deciding rank fetches the polylines of
-/// the vertices it does not hold, as on its first vertex's rank). The same
-/// on every rank: it reads only the keys, `near` and the holders.
+/// The entries (stencil keys, in key order) each rank decides. A candidate
+/// (`candidate[n]`, its index among the pass's candidates) goes to the rank
+/// whose narrow-phase task tested it (`tested_on`), where its vertices'
+/// polylines are; any other entry, which reads none, to the rank holding
+/// its first vertex's breakpoints. On one rank (`tested_on` empty) all go
+/// to rank 0. The same on every rank: it reads only the keys, the
+/// candidates' ranks and the holders.
 fn deciding_ranks(
     keys: &[&StencilKey],
-    near: &[bool],
+    candidate: &[Option<u32>],
+    tested_on: &[u32],
     holders: &[u32],
     ranks: usize,
 ) -> Vec<Vec<usize>> {
-    let holder = |v: &u32| holders[*v as usize] as usize;
-    let single = |key: &StencilKey| key.v.iter().all(|v| holder(v) == holder(&key.v[0]));
-    let mut certify = vec![0usize; ranks];
-    for (key, _) in keys.iter().zip(near).filter(|(k, &n)| n && single(k)) {
-        certify[holder(&key.v[0])] += 1;
-    }
-    let mut by_rank: Vec<Vec<usize>> = vec![Vec::new(); ranks];
-    for (n, key) in keys.iter().enumerate() {
-        let r = if single(key) {
-            holder(&key.v[0])
-        } else {
-            let r = (key.v.iter().map(holder))
-                .min_by_key(|&r| (certify[r], r))
-                .expect("a stencil has vertices");
-            certify[r] += usize::from(near[n]);
-            r
+    let mut by_rank: Vec<Vec<usize>> = vec![Vec::new(); ranks.max(1)];
+    for (n, (key, c)) in keys.iter().zip(candidate).enumerate() {
+        let r = match (ranks, c) {
+            (0 | 1, _) => 0,
+            (_, Some(c)) => tested_on[*c as usize] as usize,
+            (_, None) => holders[key.v[0] as usize] as usize,
         };
         by_rank[r].push(n);
     }
@@ -174,45 +160,27 @@ mod tests {
     use super::*;
 
     #[test]
-    fn border_stencils_go_to_the_rank_with_less_to_certify() {
+    fn candidates_are_decided_where_the_narrow_phase_tested_them() {
         // Vertices 0..8 on rank 0, 8..16 on rank 1, 16..24 on rank 2.
         let holders: Vec<u32> = (0..24).map(|v| v / 8).collect();
-        // Rank 0 certifies 6 stencils of its own, rank 1 none, rank 2 one
-        // (and one far away, not to certify); 8 stencils straddle ranks 0
-        // and 1, of which 6 are to certify.
-        let mut keys = Vec::new();
-        let mut near = Vec::new();
-        for k in 0..6u32 {
-            keys.push(StencilKey::vertex_face(k % 4, [4, 5, 6]));
-            near.push(true);
-        }
-        keys.push(StencilKey::vertex_face(16, [17, 18, 19]));
-        near.push(true);
-        keys.push(StencilKey::vertex_face(20, [21, 22, 23]));
-        near.push(false);
-        for k in 0..8u32 {
-            keys.push(StencilKey::vertex_face(k % 4, [8 + k % 3, 12, 13]));
-            near.push(k < 6);
-        }
+        let keys: Vec<StencilKey> = vec![
+            StencilKey::vertex_face(0, [1, 2, 3]), // candidate 0, tested on 2
+            StencilKey::vertex_face(1, [9, 10, 11]), // not a candidate
+            StencilKey::vertex_face(8, [16, 17, 18]), // candidate 1, tested on 0
+            StencilKey::vertex_face(17, [4, 5, 6]), // not a candidate
+            StencilKey::vertex_face(20, [21, 22, 9]), // candidate 2, tested on 2
+        ];
+        let candidate = [Some(0), None, Some(1), None, Some(2)];
+        let tested_on = [2, 0, 2];
         let refs: Vec<&StencilKey> = keys.iter().collect();
-        let by_rank = deciding_ranks(&refs, &near, &holders, 3);
-        // Every stencil once, on a rank holding one of its vertices.
-        let mut all: Vec<usize> = by_rank.concat();
+        let by_rank = deciding_ranks(&refs, &candidate, &tested_on, &holders, 3);
+        assert_eq!(by_rank, vec![vec![1, 2], vec![], vec![0, 3, 4]]);
+        // Every entry once, in key order on each rank.
+        let mut all = by_rank.concat();
         all.sort_unstable();
         assert_eq!(all, (0..keys.len()).collect::<Vec<_>>());
-        for (r, mine) in by_rank.iter().enumerate() {
-            for &n in mine {
-                assert!(keys[n].v.iter().any(|&v| holders[v as usize] as usize == r));
-            }
-        }
-        // The border's six to certify all go to rank 1 (6 against 0); its
-        // two others then find a tie and go to the lower rank.
-        let certified = |r: usize| by_rank[r].iter().filter(|&&n| near[n]).count();
-        assert_eq!((certified(0), certified(1), certified(2)), (6, 6, 1));
-        assert_eq!(
-            by_rank.iter().map(Vec::len).collect::<Vec<_>>(),
-            vec![8, 6, 2]
-        );
-        // Decided on the first vertex's rank, rank 0 would certify 12.
+        // One rank decides all.
+        let one = deciding_ranks(&refs, &candidate, &[], &holders, 1);
+        assert_eq!(one, vec![(0..keys.len()).collect::<Vec<_>>()]);
     }
 }

@@ -505,7 +505,7 @@ impl<E: Executor> Engine<E> {
             let narrow_span = trace::span_with("narrow", "candidates", count);
             let site = trace::site("narrow");
             let found = candidates.and_then(|c| Ok((self.narrow_phase(&c)?, c)));
-            let (reported, candidates) = match found {
+            let ((reported, tested_on), candidates) = match found {
                 Ok(found) => found,
                 Err(e) => {
                     snap.restore(&mut self.world);
@@ -543,7 +543,7 @@ impl<E: Executor> Engine<E> {
                 let clock = StageClock::start(&self.exec);
                 let _commit_span = trace::span("commit");
                 let _site = trace::site("commit");
-                let committed = (self.commit(&candidates, &predicted))
+                let committed = (self.commit(&candidates, &tested_on, &predicted))
                     .and_then(|done| Ok((done, self.stats_sums(&candidates)?)));
                 let ((retired, unreached), sums) = match committed {
                     Ok(done) => done,

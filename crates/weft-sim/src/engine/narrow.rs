@@ -72,7 +72,9 @@ impl<E: Executor> Engine<E> {
     }
 
     /// Stencils among `candidates` (sorted) that may come within
-    /// `eta_(depth+1)`, in key order.
+    /// `eta_(depth+1)`, in key order; and over ranks, per candidate, the
+    /// rank that tested it (it holds, or fetched for the window, the
+    /// polylines of the candidate's vertices; empty on one rank).
     ///
     /// Candidates are grouped by partition pair and split into tasks whose
     /// cost is predicted from the previous pass ([`crate::balance`]); the
@@ -85,7 +87,7 @@ impl<E: Executor> Engine<E> {
     pub(super) fn narrow_phase(
         &mut self,
         candidates: &[StencilKey],
-    ) -> Result<Vec<StencilKey>, CommError> {
+    ) -> Result<(Vec<StencilKey>, Vec<u32>), CommError> {
         const TASK: f64 = 64.0;
         let costs = &self.narrow_costs;
         let tasks = CollisionTasks::build(
@@ -97,7 +99,9 @@ impl<E: Executor> Engine<E> {
         let order = tasks.by_load();
         let ranks = self.exec.ranks();
         let mut owner = vec![0u32; order.len()];
+        let mut tested_on = Vec::new();
         if ranks > 1 {
+            tested_on = vec![0u32; candidates.len()];
             // The partitions' home ranks, placed once for the run.
             let home = self.share.as_ref().map_or(&[][..], |s| &s.home[..]);
             let by_load: Vec<_> = order.iter().map(|&t| tasks.tasks[t].clone()).collect();
@@ -109,6 +113,7 @@ impl<E: Executor> Engine<E> {
                     let task = &tasks.tasks[order[n]];
                     for &c in &tasks.order[task.range.clone()] {
                         reads[r].extend_from_slice(&candidates[c as usize].v);
+                        tested_on[c as usize] = r as u32;
                     }
                 }
             }
@@ -181,6 +186,6 @@ impl<E: Executor> Engine<E> {
         }
         costs.record(measured);
         reported.sort_unstable();
-        Ok(reported)
+        Ok((reported, tested_on))
     }
 }
