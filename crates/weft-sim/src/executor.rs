@@ -41,6 +41,10 @@ pub struct Traffic {
 /// order, and the part each rank addressed to it (`None`: none).
 pub type Addressed<T> = (Vec<Vec<u64>>, Vec<Option<T>>);
 
+/// What [`Executor::all_to_all_vectors`] brings a rank: every rank's head,
+/// in rank order, and the vectors each rank addressed to it (empty: none).
+pub type AddressedVectors = (Vec<Vec<u64>>, Vec<Vec<glam::DVec3>>);
+
 /// Ranks lost contact (a peer failed or is gone): the run cannot go on.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("{0}")]
@@ -207,7 +211,7 @@ pub trait Executor: Sync {
         &self,
         head: Vec<u64>,
         parts: Vec<Vec<glam::DVec3>>,
-    ) -> Result<(Vec<Vec<u64>>, Vec<Vec<glam::DVec3>>), CommError> {
+    ) -> Result<AddressedVectors, CommError> {
         Ok((vec![head], parts))
     }
 

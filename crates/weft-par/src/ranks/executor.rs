@@ -220,7 +220,7 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         &self,
         head: Vec<u64>,
         parts: Vec<Vec<DVec3>>,
-    ) -> Result<(Vec<Vec<u64>>, Vec<Vec<DVec3>>), CommError> {
+    ) -> Result<weft_sim::executor::AddressedVectors, CommError> {
         let size = self.transport.size();
         let me = self.rank();
         if parts.len() != size {
