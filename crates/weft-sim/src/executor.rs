@@ -37,13 +37,15 @@ pub struct Traffic {
     pub wait_cpu_ns: u64,
 }
 
-/// What [`Executor::all_to_all`] brings a rank: every rank's head, in rank
-/// order, and the part each rank addressed to it (`None`: none).
-pub type Addressed<T> = (Vec<Vec<u64>>, Vec<Option<T>>);
+/// What an all-to-all brings a rank: every rank's head, in rank order, and
+/// the part each rank addressed to it.
+pub type AddressedParts<P> = (Vec<Vec<u64>>, Vec<P>);
 
-/// What [`Executor::all_to_all_vectors`] brings a rank: every rank's head,
-/// in rank order, and the vectors each rank addressed to it (empty: none).
-pub type AddressedVectors = (Vec<Vec<u64>>, Vec<Vec<glam::DVec3>>);
+/// What [`Executor::all_to_all`] brings a rank (a part `None`: none).
+pub type Addressed<T> = AddressedParts<Option<T>>;
+
+/// What [`Executor::all_to_all_vectors`] brings a rank (a part empty: none).
+pub type AddressedVectors = AddressedParts<Vec<glam::DVec3>>;
 
 /// Ranks lost contact (a peer failed or is gone): the run cannot go on.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]

@@ -80,6 +80,54 @@ impl<T: Transport, E: Executor> Ranks<T, E> {
         }
         Ok(())
     }
+
+    /// The all-to-alls' common part: each peer's part of `parts` encoded
+    /// (`encode`; empty bytes send nothing) and what arrives decoded
+    /// (`decode`, with the sender's rank); this rank's own part stays here,
+    /// not encoded. One rank: `(vec![head], parts)`.
+    fn all_to_all_encoded<P, Encode, Decode>(
+        &self,
+        head: Vec<u64>,
+        parts: Vec<P>,
+        overlap: &mut dyn FnMut() -> bool,
+        encode: Encode,
+        decode: Decode,
+    ) -> Result<weft_sim::executor::AddressedParts<P>, CommError>
+    where
+        Encode: Fn(P) -> Result<Vec<u8>, CommError>,
+        Decode: Fn(usize, &[u8]) -> Result<P, CommError>,
+    {
+        let size = self.transport.size();
+        let me = self.rank();
+        if parts.len() != size {
+            return Err(CommError(format!(
+                "rank {me}: an all-to-all with {} parts for {size} ranks",
+                parts.len()
+            )));
+        }
+        if size == 1 {
+            return Ok((vec![head], parts));
+        }
+        let mut own = None;
+        let mut bytes = Vec::with_capacity(size);
+        for (j, part) in parts.into_iter().enumerate() {
+            bytes.push(if j == me {
+                own = Some(part);
+                Vec::new()
+            } else {
+                encode(part)?
+            });
+        }
+        let (heads, received) = self.transport.all_to_all(head, bytes, overlap)?;
+        let mut out = Vec::with_capacity(size);
+        for (j, part) in received.into_iter().enumerate() {
+            out.push(match j == me {
+                true => own.take().expect("this rank's own part"),
+                false => decode(j, &part)?,
+            });
+        }
+        Ok((heads, out))
+    }
 }
 
 impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
@@ -177,43 +225,21 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         parts: Vec<Option<R>>,
         overlap: &mut dyn FnMut() -> bool,
     ) -> Result<weft_sim::executor::Addressed<R>, CommError> {
-        let size = self.transport.size();
-        let me = self.rank();
-        if parts.len() != size {
-            return Err(CommError(format!(
-                "rank {me}: an all-to-all with {} parts for {size} ranks",
-                parts.len()
-            )));
-        }
-        if size == 1 {
-            return Ok((vec![head], parts));
-        }
         // A part travels as an encoded `Option` (never empty); `None`, as
-        // nothing at all. This rank's own part stays here, not encoded.
-        let mut own = None;
-        let mut bytes = Vec::with_capacity(size);
-        for (j, part) in parts.into_iter().enumerate() {
-            bytes.push(match part {
-                _ if j == me => {
-                    own = part;
-                    Vec::new()
-                }
-                None => Vec::new(),
-                Some(value) => self.encode(&Some(value))?,
-            });
-        }
-        let (heads, received) = self.transport.all_to_all(head, bytes, overlap)?;
-        let mut out = Vec::with_capacity(size);
-        for (j, part) in received.into_iter().enumerate() {
-            out.push(if j == me {
-                own.take()
-            } else if part.is_empty() {
-                None
-            } else {
-                self.decode::<Option<R>>(j, &part)?
-            });
-        }
-        Ok((heads, out))
+        // nothing at all.
+        self.all_to_all_encoded(
+            head,
+            parts,
+            overlap,
+            |part| match part {
+                None => Ok(Vec::new()),
+                Some(value) => self.encode(&Some(value)),
+            },
+            |j, bytes: &[u8]| match bytes.is_empty() {
+                true => Ok(None),
+                false => self.decode::<Option<R>>(j, bytes),
+            },
+        )
     }
 
     fn all_to_all_vectors(
@@ -221,38 +247,14 @@ impl<T: Transport, E: Executor> Executor for Ranks<T, E> {
         head: Vec<u64>,
         parts: Vec<Vec<DVec3>>,
     ) -> Result<weft_sim::executor::AddressedVectors, CommError> {
-        let size = self.transport.size();
         let me = self.rank();
-        if parts.len() != size {
-            return Err(CommError(format!(
-                "rank {me}: an all-to-all with {} parts for {size} ranks",
-                parts.len()
-            )));
-        }
-        if size == 1 {
-            return Ok((vec![head], parts));
-        }
-        // (This rank's own part stays here, not encoded.)
-        let mut own = Vec::new();
-        let mut bytes = Vec::with_capacity(size);
-        for (j, part) in parts.into_iter().enumerate() {
-            bytes.push(if j == me {
-                own = part;
-                Vec::new()
-            } else {
-                vector_bytes(&part)
-            });
-        }
-        let (heads, received) = self.transport.all_to_all(head, bytes, &mut || false)?;
-        let mut out = Vec::with_capacity(size);
-        for (j, part) in received.into_iter().enumerate() {
-            out.push(if j == me {
-                std::mem::take(&mut own)
-            } else {
-                bytes_vectors(me, j, &part)?
-            });
-        }
-        Ok((heads, out))
+        self.all_to_all_encoded(
+            head,
+            parts,
+            &mut || false,
+            |part: Vec<DVec3>| Ok(vector_bytes(&part)),
+            |j, bytes: &[u8]| bytes_vectors(me, j, bytes),
+        )
     }
 
     fn chunks_on_ranks<D: Message>(
