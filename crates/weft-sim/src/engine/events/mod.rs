@@ -454,13 +454,24 @@ impl Spread {
 /// (`reference_owner`: not moved by the partitions placed by load), the
 /// lowest of equals: the home of a pack or unit of them.
 fn home_rank(share: &RankShare, vertices: &[u32]) -> u32 {
-    let mut votes = vec![0usize; share.ranks];
-    for &i in vertices {
-        votes[share.reference_owner[i as usize] as usize] += 1;
+    most_voted(vertices.iter().map(|&i| share.reference_owner[i as usize]))
+}
+
+/// The rank named most often in `votes`, the lowest of equals (rank 0 for
+/// none). Counted over the votes' sorted ranks, not a count per rank: a
+/// unit's home is asked for every unit of every rank, so a count per rank
+/// would cost units × ranks at every pass start.
+fn most_voted(votes: impl Iterator<Item = u32>) -> u32 {
+    let mut votes: Vec<u32> = votes.collect();
+    votes.sort_unstable();
+    let (mut best, mut most) = (0u32, 0usize);
+    for run in votes.chunk_by(|a, b| a == b) {
+        // (ascending: a later rank must have strictly more)
+        if run.len() > most {
+            (best, most) = (run[0], run.len());
+        }
     }
-    (0..share.ranks)
-        .max_by(|&a, &b| votes[a].cmp(&votes[b]).then(b.cmp(&a)))
-        .expect("a rank") as u32
+    best
 }
 
 /// Places items of the given costs on `ranks` ranks, largest first (the
@@ -1558,6 +1569,29 @@ mod tests {
         assert_eq!(tick_at_or_after(0, 5), 5);
         assert_eq!(tick_at_or_after(5, 5), 5);
         assert_eq!(tick_at_or_after(6, 5), 10);
+    }
+
+    #[test]
+    fn most_voted_is_the_per_rank_counts_choice() {
+        // Against a count per rank: the most votes, the lowest of equals,
+        // rank 0 for none.
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = |n: u64| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed % n
+        };
+        for _ in 0..500 {
+            let ranks = 1 + next(12) as usize;
+            let votes: Vec<u32> = (0..next(20)).map(|_| next(ranks as u64) as u32).collect();
+            let mut count = vec![0usize; ranks];
+            votes.iter().for_each(|&r| count[r as usize] += 1);
+            let expected = (0..ranks)
+                .max_by(|&a, &b| count[a].cmp(&count[b]).then(b.cmp(&a)))
+                .unwrap() as u32;
+            assert_eq!(most_voted(votes.iter().copied()), expected, "{votes:?}");
+        }
     }
 
     #[test]
