@@ -934,9 +934,8 @@ impl<E: Executor> Engine<E> {
         let spread = self.ws.units.spread();
         if spread {
             let (promote, checked) = (self.ws.units).renew(&self.exec, &self.world, (s, e));
-            let site = trace::site("events: promotions before a segment");
-            let (promote, checked) = self.agree(promote, checked)?;
-            drop(site);
+            let site = "events: promotions before a segment";
+            let (promote, checked) = self.agree(promote, checked, site)?;
             let share = self.share.as_ref().expect("over ranks");
             let homes = (&share.reference_owner[..], &share.owner[..]);
             let moves = (self.ws.units).promote_agreed(&promote, checked, &self.world, homes);
@@ -1055,9 +1054,7 @@ impl<E: Executor> Engine<E> {
                 let added = here.chain(theirs.iter().flat_map(|o| o.far_added.iter().copied()));
                 (self.ws.units).check(&self.world, (s, e), fast, added)
             };
-            let site = trace::site("events: promotions after a check");
-            let (promote, last) = self.agree(promote, last)?;
-            drop(site);
+            let (promote, last) = self.agree(promote, last, "events: promotions after a check")?;
             let share = self.share.as_ref().expect("over ranks");
             let homes = (&share.reference_owner[..], &share.owner[..]);
             let merged = (self.ws.units).check_agreed(&promote, last, &self.world, homes);
@@ -1098,8 +1095,14 @@ impl<E: Executor> Engine<E> {
     /// the far stencils each rank found to promote (`promote`, by their
     /// index among every rank's) and what finding them evaluated
     /// (`checked`), agreed: every rank's promotions, ascending (each far
-    /// stencil has one watcher), and the evaluations summed.
-    fn agree(&self, promote: Vec<u32>, checked: Checked) -> Result<(Vec<u32>, Checked), SimError> {
+    /// stencil has one watcher), and the evaluations summed. `site` names
+    /// the all-gather ([`trace::site`]).
+    fn agree(
+        &self,
+        promote: Vec<u32>,
+        checked: Checked,
+        site: &'static str,
+    ) -> Result<(Vec<u32>, Checked), SimError> {
         let bits = f64::from_bits;
         let head = DVec3::new(bits(checked.evaluations), checked.min_separation, 0.0);
         let mine: Vec<DVec3> = std::iter::once(head)
@@ -1109,6 +1112,7 @@ impl<E: Executor> Engine<E> {
                     .map(|&f| DVec3::new(bits(f.into()), 0.0, 0.0)),
             )
             .collect();
+        let _site = trace::site(site);
         let all = self.exec.all_gather_vectors(&mine)?;
         let (mut agreed, mut total) = (Vec::<u64>::new(), Checked::default());
         for part in &all {
@@ -1575,13 +1579,8 @@ mod tests {
     fn most_voted_is_the_per_rank_counts_choice() {
         // Against a count per rank: the most votes, the lowest of equals,
         // rank 0 for none.
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = |n: u64| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed % n
-        };
+        let mut uniform = crate::uniform_numbers(0x9e37_79b9_7f4a_7c15);
+        let mut next = |n: u64| (uniform() * n as f64) as u64;
         for _ in 0..500 {
             let ranks = 1 + next(12) as usize;
             let votes: Vec<u32> = (0..next(20)).map(|_| next(ranks as u64) as u32).collect();

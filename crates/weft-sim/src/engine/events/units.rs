@@ -833,13 +833,11 @@ impl Units {
             }
             let here = self.here(slot as usize);
             set_member(&mut self.mine, slot, here);
-            match here {
-                true => joined.extend_from_slice(&vertices),
-                false => left.extend_from_slice(&vertices),
-            }
-            if self.here(slot as usize) {
+            if here {
+                joined.extend_from_slice(&vertices);
                 built.push((slot, Mutex::new(Some((vertices, members)))));
             } else {
+                left.extend_from_slice(&vertices);
                 self.remote[slot as usize] = Some((vertices, members));
             }
             merged.changed.push(slot);
