@@ -423,7 +423,7 @@ fn partitions_placed_again_between_windows_keep_the_bits() {
                     })
                     .collect();
                 let before = e.placements;
-                e.place_partitions(home);
+                e.place_partitions(home).expect("placed again");
                 assert_eq!(e.placements, before + 1, "placed after window {w}");
             };
             run_hooked(exec, partitions, &[], &mut place)

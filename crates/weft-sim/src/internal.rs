@@ -10,6 +10,13 @@
 //! are laid out by vertex, so a vertex's fold reads short runs of
 //! neighbouring slots rather than one slot per element scattered over the
 //! partition.
+//!
+//! Over ranks a rank keeps the elements of the partitions placed on it only
+//! ([`InternalForces::held_only`]): the partitions, their slots and pieces,
+//! the per-vertex fold order and what each partition reads stay whole (the
+//! plan every rank computes alike reads them), and the elements of a
+//! partition placed again elsewhere move there as words
+//! ([`InternalForces::partition_words`], [`InternalForces::place_again`]).
 
 use std::ops::Range;
 
@@ -38,14 +45,16 @@ const _: () = assert!(4 * ELEMENTS_PER_PIECE <= 1 << 16);
 /// elements, then its hinges), and so of its output slots.
 #[derive(Clone, Debug, PartialEq)]
 struct Piece {
+    partition: u32,
     stretch: Range<usize>,
     hinges: Range<usize>,
 }
 
 impl Piece {
-    /// A whole partition as a piece.
-    fn of(part: &Partition) -> Self {
+    /// Partition `p`, `part`, as a piece.
+    fn of(p: usize, part: &Partition) -> Self {
         Piece {
+            partition: p as u32,
             stretch: part.stretch.clone(),
             hinges: part.hinges.clone(),
         }
@@ -72,15 +81,53 @@ pub struct ElementMask {
     in_piece: Vec<usize>,
 }
 
-/// All internal stencils of the world.
+/// Where a held partition's elements start in the held storage.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Held {
+    stretch: usize,
+    hinges: usize,
+}
+
+/// Words per element that moves with its partition
+/// ([`InternalForces::partition_words`]): a stretch element's 7, its
+/// material, its key and its 3 corners' slots; a hinge's 6, its material,
+/// its key and its 4 corners' slots.
+const MOVED_WORDS: usize = 12;
+const _: () = assert!(StretchElement::WORDS + 2 + 3 == MOVED_WORDS);
+const _: () = assert!(HingeElement::WORDS + 2 + 4 == MOVED_WORDS);
+
+/// The internal stencils of the world: all of them, or over ranks those of
+/// the partitions held here ([`InternalForces::held_only`]).
 #[derive(Clone, Debug)]
 pub struct InternalForces {
+    /// The held elements, partition by partition in storage order (all of
+    /// them on one memory: then an element's index here is its storage
+    /// index).
     pub stretch: Vec<StretchElement>,
     pub stretch_material: Vec<u16>,
     pub hinges: Vec<HingeElement>,
     pub hinge_material: Vec<u16>,
     pub materials: Vec<Material>,
     pub partitions: Vec<Partition>,
+    /// Per partition, where its elements start in the held storage;
+    /// `None` where it is not held here.
+    held: Vec<Option<Held>>,
+    /// Whether every element is held and indexed by storage index (a
+    /// world as built); `false` after [`InternalForces::held_only`].
+    whole: bool,
+    /// Stretch elements and hinges of the world, held or not.
+    num_stretch: usize,
+    num_hinges: usize,
+    /// Of a part ([`InternalForces::held_only`]): each held element's place
+    /// in global key order among its kind (the statistics' sums run in
+    /// that order). Empty when whole (`stretch_by_key` says it).
+    stretch_key: Vec<u32>,
+    hinge_key: Vec<u32>,
+    /// Per partition, the vertices its elements read (ascending), in one
+    /// list cut at `reads_start`: what every rank's plan of the exchanges
+    /// reads ([`crate::share::RankShare`]).
+    reads_start: Vec<u32>,
+    reads: Vec<u32>,
     /// The partitions cut into pieces of at most [`ELEMENTS_PER_PIECE`]
     /// elements, with their slot bounds: on one memory the tasks of an
     /// evaluation (a few partitions can hold most of a masked evaluation's
@@ -96,14 +143,16 @@ pub struct InternalForces {
     piece_order: Vec<u32>,
     /// Storage index of each stretch element and hinge in global key order
     /// (storage is partition-major): every sum over elements runs in this
-    /// order, so its bits do not depend on the partitioning.
+    /// order, so its bits do not depend on the partitioning. Empty in a
+    /// part (`stretch_key` says it).
     stretch_by_key: Vec<u32>,
     hinge_by_key: Vec<u32>,
     /// Per-vertex CSR of output slots in global key order.
     incidence_offsets: Vec<u32>,
     incidence: Vec<u32>,
-    /// The output slot of each element corner, from its piece's first
-    /// slot: 3 per stretch element, then 4 per hinge, in storage order.
+    /// The output slot of each held element corner, from its piece's
+    /// first slot: 3 per held stretch element, then 4 per held hinge, in
+    /// the held storage's order.
     /// Within a piece the slots are laid out by vertex (then in the fold's
     /// order), not by element.
     corner_slot: Vec<u16>,
@@ -266,13 +315,39 @@ impl InternalForces {
         };
         let mut piece_order: Vec<u32> = (0..pieces.len() as u32).collect();
         piece_order.sort_by_key(|&k| (first_vertex(&pieces[k as usize]), k));
+        let (mut reads_start, mut reads) = (vec![0u32], Vec::new());
+        for part in &parts {
+            let stretch = stretch[part.stretch.clone()].iter().map(|e| &e.verts[..]);
+            let hinges = hinges[part.hinges.clone()].iter().map(|e| &e.verts[..]);
+            let mut read: Vec<u32> = stretch.chain(hinges).flatten().copied().collect();
+            read.sort_unstable();
+            read.dedup();
+            reads.extend(read);
+            reads_start.push(reads.len() as u32);
+        }
+        let held = (parts.iter())
+            .map(|part| {
+                Some(Held {
+                    stretch: part.stretch.start,
+                    hinges: part.hinges.start,
+                })
+            })
+            .collect();
         Ok(Self {
+            num_stretch: stretch.len(),
+            num_hinges: hinges.len(),
             stretch,
             stretch_material,
             hinges,
             hinge_material,
             materials: materials_list.to_vec(),
             partitions: parts,
+            held,
+            whole: true,
+            stretch_key: Vec::new(),
+            hinge_key: Vec::new(),
+            reads_start,
+            reads,
             pieces,
             piece_bounds,
             piece_order,
@@ -293,7 +368,31 @@ impl InternalForces {
 
     /// Number of internal stencils (stretch + hinge elements).
     pub fn num_stencils(&self) -> usize {
-        self.stretch.len() + self.hinges.len()
+        self.num_stretch + self.num_hinges
+    }
+
+    /// Whether partition `p`'s elements are held here.
+    pub fn holds(&self, p: usize) -> bool {
+        self.held[p].is_some()
+    }
+
+    /// Whether every element is held (a world as built, not a rank's
+    /// part).
+    pub fn is_whole(&self) -> bool {
+        self.whole
+    }
+
+    /// The vertices partition `p`'s elements read, ascending (held here or
+    /// not).
+    pub fn reads(&self, p: usize) -> &[u32] {
+        &self.reads[self.reads_start[p] as usize..self.reads_start[p + 1] as usize]
+    }
+
+    /// Where partition `p`'s elements start in the held storage; a
+    /// partition not held here is a bug of the caller (a rank evaluates
+    /// only the partitions placed on it).
+    fn held_at(&self, p: usize) -> Held {
+        self.held[p].unwrap_or_else(|| panic!("partition {p}'s elements are not held here"))
     }
 
     /// Slot bounds of the partitions, for [`Executor::for_each_chunk`].
@@ -397,16 +496,24 @@ impl InternalForces {
         });
     }
 
-    /// The elements (by storage index) all of whose vertices `pick` keeps.
+    /// The held elements (by storage index) all of whose vertices `pick`
+    /// keeps (an element not held here is not in).
     pub fn mask_where(&self, pick: impl Fn(u32) -> bool) -> ElementMask {
-        let stretch: Vec<bool> = (self.stretch.iter())
-            .map(|e| e.verts.iter().all(|&i| pick(i)))
-            .collect();
-        let hinges: Vec<bool> = (self.hinges.iter())
-            .map(|e| e.verts.iter().all(|&i| pick(i)))
-            .collect();
-        let in_partition = (self.partitions.iter())
-            .map(|p| Piece::of(p).count_in(&stretch, &hinges))
+        let mut stretch = vec![false; self.num_stretch];
+        let mut hinges = vec![false; self.num_hinges];
+        for (p, part) in self.partitions.iter().enumerate() {
+            let Some(at) = self.held[p] else { continue };
+            let held = &self.stretch[at.stretch..at.stretch + part.stretch.len()];
+            for (flag, e) in stretch[part.stretch.clone()].iter_mut().zip(held) {
+                *flag = e.verts.iter().all(|&i| pick(i));
+            }
+            let held = &self.hinges[at.hinges..at.hinges + part.hinges.len()];
+            for (flag, e) in hinges[part.hinges.clone()].iter_mut().zip(held) {
+                *flag = e.verts.iter().all(|&i| pick(i));
+            }
+        }
+        let in_partition = (self.partitions.iter().enumerate())
+            .map(|(p, part)| Piece::of(p, part).count_in(&stretch, &hinges))
             .collect();
         let in_piece = (self.pieces.iter())
             .map(|p| p.count_in(&stretch, &hinges))
@@ -471,12 +578,20 @@ impl InternalForces {
                 chunk[usize::from(slot)] = g;
             }
         };
+        // Storage index `s` (`h`) is held element `s - ds` (`h - dh`).
+        let p = piece.partition as usize;
+        let (part, at) = (&self.partitions[p], self.held_at(p));
+        let (ds, dh) = (
+            part.stretch.start - at.stretch,
+            part.hinges.start - at.hinges,
+        );
         for s in piece.stretch.clone() {
             if mask.is_some_and(|(m, want)| m.stretch[s] != want) {
                 continue;
             }
-            let e = &self.stretch[s];
-            let m = &self.materials[self.stretch_material[s] as usize];
+            let l = s - ds;
+            let e = &self.stretch[l];
+            let m = &self.materials[self.stretch_material[l] as usize];
             let xs = e.verts.map(|i| x[i as usize]);
             let mut g = e.gradient(&xs, m);
             if self.damped && m.stretch_damping > 0.0 {
@@ -486,15 +601,16 @@ impl InternalForces {
                     g[j] -= f[j];
                 }
             }
-            write(&self.corner_slot[3 * s..3 * s + 3], &g);
+            write(&self.corner_slot[3 * l..3 * l + 3], &g);
         }
         let hinge_corners = &self.corner_slot[3 * self.stretch.len()..];
         for h in piece.hinges.clone() {
             if mask.is_some_and(|(m, want)| m.hinges[h] != want) {
                 continue;
             }
-            let e = &self.hinges[h];
-            let m = &self.materials[self.hinge_material[h] as usize];
+            let l = h - dh;
+            let e = &self.hinges[l];
+            let m = &self.materials[self.hinge_material[l] as usize];
             let xs = e.verts.map(|i| x[i as usize]);
             let mut g = e.gradient(&xs, m.bending_stiffness);
             if self.damped && m.bend_damping > 0.0 {
@@ -504,7 +620,7 @@ impl InternalForces {
                     g[j] -= f[j];
                 }
             }
-            write(&hinge_corners[4 * h..4 * h + 4], &g);
+            write(&hinge_corners[4 * l..4 * l + 4], &g);
         }
     }
 
@@ -517,17 +633,27 @@ impl InternalForces {
         &self.incidence[a..b]
     }
 
-    /// The vertex of each output slot of partition `p`, in slot order.
+    /// The vertex of each output slot of partition `p` (held here), in
+    /// slot order.
     pub fn slot_vertices(&self, p: usize) -> Vec<u32> {
-        let first = self.partitions[p].slots.start;
-        let mut out = vec![NONE; self.partitions[p].slots.len()];
+        let part = &self.partitions[p];
+        let first = part.slots.start;
+        let mut out = vec![NONE; part.slots.len()];
         let ns = self.stretch.len();
+        let held = self.held_at(p);
+        let (ds, dh) = (
+            part.stretch.start - held.stretch,
+            part.hinges.start - held.hinges,
+        );
         for k in self.pieces_of[p].clone() {
             let piece = &self.pieces[k];
             let at = self.piece_bounds[k] - first;
-            let corners = (piece.stretch.clone())
+            let corners = (piece.stretch.clone().map(|s| s - ds))
                 .map(|s| (&self.stretch[s].verts[..], 3 * s))
-                .chain((piece.hinges.clone()).map(|h| (&self.hinges[h].verts[..], 3 * ns + 4 * h)));
+                .chain(
+                    (piece.hinges.clone().map(|h| h - dh))
+                        .map(|h| (&self.hinges[h].verts[..], 3 * ns + 4 * h)),
+                );
             for (verts, c) in corners {
                 for (j, &vtx) in verts.iter().enumerate() {
                     out[at + usize::from(self.corner_slot[c + j])] = vtx;
@@ -555,12 +681,14 @@ impl InternalForces {
     /// global key order are the stretch elements, then the hinges, and
     /// [`InternalForces::energy_of`] sums a range of that order.
     pub fn elements_by_key(&self) -> (usize, usize) {
-        (self.stretch_by_key.len(), self.hinge_by_key.len())
+        (self.num_stretch, self.num_hinges)
     }
 
     /// The elastic energy of the elements `range` of the key order (see
-    /// [`InternalForces::elements_by_key`]), summed in that order.
+    /// [`InternalForces::elements_by_key`]), summed in that order; of a
+    /// whole world's (over ranks, [`InternalForces::held_energies`]).
     pub fn energy_of(&self, x: &[DVec3], range: std::ops::Range<usize>) -> f64 {
+        self.assert_whole("the energy of a range of elements");
         let ns = self.stretch_by_key.len();
         let mut e = 0.0;
         for n in range {
@@ -583,6 +711,7 @@ impl InternalForces {
     /// (the stable step, the damping limit) whose sums must not depend on the
     /// partitioning; [`KeyOrdered::model`] views it.
     pub fn key_ordered(&self) -> KeyOrdered {
+        self.assert_whole("the elements in key order");
         let pick = |order: &[u32], material: &[u16]| -> Vec<u16> {
             order.iter().map(|&i| material[i as usize]).collect()
         };
@@ -642,6 +771,292 @@ impl InternalForces {
     }
 }
 
+/// The held part of the elements over ranks: a rank keeps the elements of
+/// the partitions placed on it, and they move with a partition placed
+/// again.
+impl InternalForces {
+    fn assert_whole(&self, what: &str) {
+        assert!(
+            self.whole,
+            "{what} needs every element; this rank holds a part"
+        );
+    }
+
+    /// The vertices of each held element whose entry in `mask` is `want`.
+    pub fn verts_where<'a>(
+        &'a self,
+        mask: &'a ElementMask,
+        want: bool,
+    ) -> impl Iterator<Item = &'a [u32]> + 'a {
+        let held =
+            (self.partitions.iter().zip(&self.held)).filter_map(|(part, at)| Some((part, (*at)?)));
+        held.flat_map(move |(part, at)| {
+            let stretch = (self.stretch[at.stretch..at.stretch + part.stretch.len()].iter())
+                .zip(&mask.stretch[part.stretch.clone()])
+                .filter(move |(_, &m)| m == want)
+                .map(|(e, _)| &e.verts[..]);
+            let hinges = (self.hinges[at.hinges..at.hinges + part.hinges.len()].iter())
+                .zip(&mask.hinges[part.hinges.clone()])
+                .filter(move |(_, &m)| m == want)
+                .map(|(e, _)| &e.verts[..]);
+            stretch.chain(hinges)
+        })
+    }
+
+    /// A rank's part of a whole world's elements: those of the partitions
+    /// `keep` names. The partitions, their slots and pieces, the per-vertex
+    /// fold and what each partition reads stay whole; each held element
+    /// also keeps its place in key order (for the statistics' sums,
+    /// [`InternalForces::held_energies`]).
+    pub fn held_only(&self, keep: impl Fn(usize) -> bool) -> Self {
+        self.assert_whole("a rank's part");
+        let inverse = |by_key: &[u32]| {
+            let mut key = vec![0u32; by_key.len()];
+            for (n, &at) in by_key.iter().enumerate() {
+                key[at as usize] = n as u32;
+            }
+            key
+        };
+        let keys = (inverse(&self.stretch_by_key), inverse(&self.hinge_by_key));
+        let mut part = self.clone_global();
+        part.held = vec![None; self.partitions.len()];
+        let mut hinge_corners = Vec::new();
+        for p in (0..self.partitions.len()).filter(|&p| keep(p)) {
+            part.append_held(self, p, (&keys.0, &keys.1), &mut hinge_corners);
+        }
+        part.corner_slot.extend(hinge_corners);
+        part
+    }
+
+    /// Appends partition `p`'s elements as `from` holds them (with their
+    /// places in key order `keys`, by held index) to this part's held
+    /// storage; their hinges' corner slots go to `hinge_corners`, joined to
+    /// `corner_slot` once every partition is in.
+    fn append_held(
+        &mut self,
+        from: &Self,
+        p: usize,
+        (stretch_key, hinge_key): (&[u32], &[u32]),
+        hinge_corners: &mut Vec<u16>,
+    ) {
+        let (part, at) = (&from.partitions[p], from.held_at(p));
+        self.held[p] = Some(Held {
+            stretch: self.stretch.len(),
+            hinges: self.hinges.len(),
+        });
+        let s = at.stretch..at.stretch + part.stretch.len();
+        let h = at.hinges..at.hinges + part.hinges.len();
+        self.stretch.extend_from_slice(&from.stretch[s.clone()]);
+        self.stretch_material
+            .extend_from_slice(&from.stretch_material[s.clone()]);
+        self.stretch_key.extend_from_slice(&stretch_key[s.clone()]);
+        self.corner_slot
+            .extend_from_slice(&from.corner_slot[3 * s.start..3 * s.end]);
+        self.hinges.extend_from_slice(&from.hinges[h.clone()]);
+        self.hinge_material
+            .extend_from_slice(&from.hinge_material[h.clone()]);
+        self.hinge_key.extend_from_slice(&hinge_key[h.clone()]);
+        let hinges_at = 3 * from.stretch.len();
+        hinge_corners
+            .extend_from_slice(&from.corner_slot[hinges_at + 4 * h.start..hinges_at + 4 * h.end]);
+    }
+
+    /// A copy of what stays whole in a rank's part, with no element.
+    fn clone_global(&self) -> Self {
+        Self {
+            stretch: Vec::new(),
+            stretch_material: Vec::new(),
+            hinges: Vec::new(),
+            hinge_material: Vec::new(),
+            materials: self.materials.clone(),
+            partitions: self.partitions.clone(),
+            held: Vec::new(),
+            whole: false,
+            num_stretch: self.num_stretch,
+            num_hinges: self.num_hinges,
+            stretch_key: Vec::new(),
+            hinge_key: Vec::new(),
+            reads_start: self.reads_start.clone(),
+            reads: self.reads.clone(),
+            pieces: self.pieces.clone(),
+            piece_bounds: self.piece_bounds.clone(),
+            piece_order: self.piece_order.clone(),
+            stretch_by_key: Vec::new(),
+            hinge_by_key: Vec::new(),
+            incidence_offsets: self.incidence_offsets.clone(),
+            incidence: self.incidence.clone(),
+            corner_slot: Vec::new(),
+            pieces_of: self.pieces_of.clone(),
+            damped: self.damped,
+        }
+    }
+
+    /// The elastic energy of each held element of a rank's part with its
+    /// place in key order ([`InternalForces::elements_by_key`]: the
+    /// stretch elements, then the hinges), ascending by that place. The
+    /// statistics gather them where a range of that order is summed, in
+    /// the same order as [`InternalForces::energy_of`], so the sum has its
+    /// bits.
+    pub fn held_energies(&self, x: &[DVec3]) -> Vec<(u32, f64)> {
+        assert!(!self.whole, "a rank's part keeps its elements' keys");
+        let ns = self.num_stretch as u32;
+        let stretch = (self
+            .stretch
+            .iter()
+            .zip(&self.stretch_material)
+            .zip(&self.stretch_key))
+        .map(|((e, &m), &n)| {
+            let m = &self.materials[m as usize];
+            (n, e.energy(&e.verts.map(|i| x[i as usize]), m))
+        });
+        let hinges = (self
+            .hinges
+            .iter()
+            .zip(&self.hinge_material)
+            .zip(&self.hinge_key))
+        .map(|((e, &m), &n)| {
+            let k = self.materials[m as usize].bending_stiffness;
+            (ns + n, e.energy(&e.verts.map(|i| x[i as usize]), k))
+        });
+        let mut energies: Vec<(u32, f64)> = stretch.chain(hinges).collect();
+        energies.sort_unstable_by_key(|e| e.0);
+        energies
+    }
+
+    /// How many words partition `p`'s elements move as
+    /// ([`InternalForces::partition_words`]).
+    pub fn moved_words(&self, p: usize) -> usize {
+        let part = &self.partitions[p];
+        MOVED_WORDS * (part.stretch.len() + part.hinges.len())
+    }
+
+    /// Partition `p`'s elements (held here) as words, every bit kept, for
+    /// the rank it is placed on next: per stretch element its words, its
+    /// material, its place in key order and its corners' slots, then the
+    /// same per hinge.
+    pub fn partition_words(&self, p: usize) -> Vec<f64> {
+        assert!(!self.whole, "a rank's part keeps its elements' keys");
+        let (part, at) = (&self.partitions[p], self.held_at(p));
+        let mut words = Vec::with_capacity(self.moved_words(p));
+        let hinge_corners = &self.corner_slot[3 * self.stretch.len()..];
+        for l in at.stretch..at.stretch + part.stretch.len() {
+            words.extend(self.stretch[l].to_words());
+            words.push(self.stretch_material[l].into());
+            words.push(self.stretch_key[l].into());
+            words.extend(
+                self.corner_slot[3 * l..3 * l + 3]
+                    .iter()
+                    .map(|&c| f64::from(c)),
+            );
+        }
+        for l in at.hinges..at.hinges + part.hinges.len() {
+            words.extend(self.hinges[l].to_words());
+            words.push(self.hinge_material[l].into());
+            words.push(self.hinge_key[l].into());
+            words.extend(
+                hinge_corners[4 * l..4 * l + 4]
+                    .iter()
+                    .map(|&c| f64::from(c)),
+            );
+        }
+        words
+    }
+
+    /// A rank's part placed again: it holds the partitions `keep` names
+    /// from now on, those it held kept as they are and the others taken
+    /// from `arrived` (partition, its [`InternalForces::partition_words`]
+    /// from the rank that held it). An error names a partition whose words
+    /// are missing or do not decode.
+    pub fn place_again(
+        &mut self,
+        keep: impl Fn(usize) -> bool,
+        arrived: Vec<(usize, Vec<f64>)>,
+    ) -> Result<(), String> {
+        assert!(!self.whole, "a rank's part keeps its elements' keys");
+        let mut arrived_for = vec![None; self.partitions.len()];
+        for (p, words) in arrived {
+            arrived_for[p] = Some(words);
+        }
+        let mut next = self.clone_global();
+        next.held = vec![None; self.partitions.len()];
+        let mut hinge_corners = Vec::new();
+        for p in (0..self.partitions.len()).filter(|&p| keep(p)) {
+            if self.holds(p) {
+                let keys = (&self.stretch_key[..], &self.hinge_key[..]);
+                next.append_held(self, p, keys, &mut hinge_corners);
+                continue;
+            }
+            let words = (arrived_for[p].take())
+                .ok_or_else(|| format!("partition {p}'s elements did not arrive"))?;
+            next.append_moved(p, &words, &mut hinge_corners)
+                .map_err(|what| format!("partition {p}'s elements arrived with {what}"))?;
+        }
+        next.corner_slot.extend(hinge_corners);
+        *self = next;
+        Ok(())
+    }
+
+    /// Appends partition `p`'s elements from their
+    /// [`InternalForces::partition_words`] (as
+    /// [`InternalForces::append_held`]); an error says what does not
+    /// decode.
+    fn append_moved(
+        &mut self,
+        p: usize,
+        words: &[f64],
+        hinge_corners: &mut Vec<u16>,
+    ) -> Result<(), String> {
+        if words.len() != self.moved_words(p) {
+            return Err(format!(
+                "{} words instead of {}",
+                words.len(),
+                self.moved_words(p)
+            ));
+        }
+        self.held[p] = Some(Held {
+            stretch: self.stretch.len(),
+            hinges: self.hinges.len(),
+        });
+        let materials = self.materials.len() as u32;
+        // An element's own words, then its material, its key and its
+        // corners' slots, each a whole number below its bound.
+        let split =
+            |w: &[f64], own: usize, keys: usize| -> Option<(Vec<f64>, u16, u32, Vec<u16>)> {
+                let int = |x: f64, below: u32| -> Option<u32> {
+                    ((0.0..f64::from(below)).contains(&x) && x.fract() == 0.0).then_some(x as u32)
+                };
+                let material = int(w[own], materials)? as u16;
+                let key = int(w[own + 1], keys as u32)?;
+                let corners = (w[own + 2..].iter())
+                    .map(|&c| int(c, 1 << 16).map(|c| c as u16))
+                    .collect::<Option<_>>()?;
+                Some((w[..own].to_vec(), material, key, corners))
+            };
+        let (stretch, hinges) = words.split_at(MOVED_WORDS * self.partitions[p].stretch.len());
+        for w in stretch.chunks_exact(MOVED_WORDS) {
+            let (own, material, key, corners) = split(w, StretchElement::WORDS, self.num_stretch)
+                .ok_or("a stretch element that does not decode")?;
+            let e = StretchElement::from_words(&own.try_into().expect("its words"))
+                .ok_or("a stretch element's vertex that is not a vertex id")?;
+            self.stretch.push(e);
+            self.stretch_material.push(material);
+            self.stretch_key.push(key);
+            self.corner_slot.extend(corners);
+        }
+        for w in hinges.chunks_exact(MOVED_WORDS) {
+            let (own, material, key, corners) = split(w, HingeElement::WORDS, self.num_hinges)
+                .ok_or("a hinge that does not decode")?;
+            let e = HingeElement::from_words(&own.try_into().expect("its words"))
+                .ok_or("a hinge's vertex that is not a vertex id")?;
+            self.hinges.push(e);
+            self.hinge_material.push(material);
+            self.hinge_key.push(key);
+            hinge_corners.extend(corners);
+        }
+        Ok(())
+    }
+}
+
 /// All elements in global key order (see [`InternalForces::key_ordered`]).
 #[derive(Clone, Debug)]
 pub struct KeyOrdered {
@@ -682,7 +1097,7 @@ fn cut_into_pieces(parts: &[Partition]) -> (Vec<Piece>, Vec<usize>, Vec<Range<us
     let mut pieces = Vec::new();
     let mut bounds = vec![0];
     let mut pieces_of = Vec::with_capacity(parts.len());
-    for part in parts {
+    for (p, part) in parts.iter().enumerate() {
         let (ns, nh) = (part.stretch.len(), part.hinges.len());
         let n = ns + nh;
         let count = n.div_ceil(ELEMENTS_PER_PIECE).max(1);
@@ -695,7 +1110,11 @@ fn cut_into_pieces(parts: &[Partition]) -> (Vec<Piece>, Vec<usize>, Vec<Range<us
             let hinges = (part.hinges.start + a.max(ns) - ns)..(part.hinges.start + b.max(ns) - ns);
             slot += 3 * stretch.len() + 4 * hinges.len();
             bounds.push(slot);
-            pieces.push(Piece { stretch, hinges });
+            pieces.push(Piece {
+                partition: p as u32,
+                stretch,
+                hinges,
+            });
         }
         debug_assert_eq!(slot, part.slots.end);
     }

@@ -282,15 +282,13 @@ impl RankShare {
                 }
             }
         }
-        // What an element reads: its vertices, kinematic ones too (those
-        // fold no slot).
+        // What a partition's elements read: their vertices, kinematic ones
+        // too (those fold no slot). (Every rank has these lists whole; the
+        // elements themselves only of its own partitions.)
         let mut read_here = vec![false; n];
         let mut off_owner: Vec<(u32, u32)> = Vec::new();
-        for (p, part) in internal.partitions.iter().enumerate() {
-            let reads = (part.stretch.clone())
-                .flat_map(|s| internal.stretch[s].verts.to_vec())
-                .chain((part.hinges.clone()).flat_map(|h| internal.hinges[h].verts.to_vec()));
-            for i in reads {
+        for p in 0..internal.partitions.len() {
+            for &i in internal.reads(p) {
                 if owner[i as usize] != home[p] {
                     off_owner.push((i, home[p]));
                 }

@@ -177,7 +177,7 @@ impl NarrowLoad {
 impl<E: Executor> Engine<E> {
     /// Wraps `world`, refusing an initial state in which a stencil is within
     /// the floor `eta_inf` or two triangles intersect.
-    pub fn new(world: World, exec: E) -> Result<Self, SimError> {
+    pub fn new(mut world: World, exec: E) -> Result<Self, SimError> {
         let n = world.num_vertices();
         let mut traj = Trajectories::new(n, world.limits.trajectory_budget_bytes);
         let share = (exec.ranks() > 1).then(|| RankShare::new(&world, exec.rank(), exec.ranks()));
@@ -185,6 +185,9 @@ impl<E: Executor> Engine<E> {
             // A vertex's breakpoints are stored by its owner only; others
             // fetch what their tasks read.
             traj.hold_only(share.owner.clone(), share.rank as u32);
+            // The internal elements of this rank's partitions only.
+            let (home, me) = (&share.home, share.rank as u32);
+            world.internal = Arc::new(world.internal.held_only(|p| home[p] == me));
         }
         // (After `hold_only`: the columns hold the vertices held here.)
         traj.make_staged_columns();

@@ -25,6 +25,9 @@
 //! follow measured times. Every rank computes it from the same gathered
 //! numbers and so takes the same one.
 
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
 use glam::DVec3;
 
 use super::Engine;
@@ -74,25 +77,28 @@ impl<E: Executor> Engine<E> {
             .map(|p| p.slots.len())
             .collect();
         if let Some(home) = place_by_load(&slots, &share.home, &islands, &rest) {
-            self.place_partitions(home);
+            self.place_partitions(home)?;
         }
         Ok(())
     }
 
     /// Over ranks, between windows, on every rank alike: places partition
     /// `p` on rank `home[p]` (this rank's share, which trajectories it
-    /// stores, the broad phase's trees). The engine does it itself by the
-    /// measured load; any placement gives the same bits (held by
-    /// `weft-par/tests/determinism.rs` with placements changed by hand).
-    pub fn place_partitions(&mut self, home: Vec<u32>) {
+    /// stores, the broad phase's trees, and the internal elements it holds:
+    /// a partition's move from the rank that held it, point to point).
+    /// The engine does it itself by the measured load; any placement gives
+    /// the same bits (held by `weft-par/tests/determinism.rs` with
+    /// placements changed by hand).
+    pub fn place_partitions(&mut self, home: Vec<u32>) -> Result<(), CommError> {
         let (rank, ranks) = (self.exec.rank(), self.exec.ranks());
         if ranks < 2 {
-            return;
+            return Ok(());
         }
         assert!(
             home.iter().all(|&r| (r as usize) < ranks),
             "a rank per partition"
         );
+        self.move_elements(&home)?;
         self.placements += 1;
         let share = RankShare::placed(&self.world, rank, ranks, home.clone());
         self.traj.hold_only(share.owner.clone(), rank as u32);
@@ -103,6 +109,55 @@ impl<E: Executor> Engine<E> {
         self.broad.spread(home);
         self.ws.placed_again(&share);
         self.share = Some(share);
+        Ok(())
+    }
+
+    /// Over ranks, before the partitions are placed on `home`: each
+    /// partition that changes rank sends its elements from the rank that
+    /// held it to the one it goes to (in one message per pair of ranks,
+    /// partitions in order), and each rank holds the elements of its
+    /// partitions under `home` from then on.
+    fn move_elements(&mut self, home: &[u32]) -> Result<(), CommError> {
+        let me = self.exec.rank() as u32;
+        let old = &self.share.as_ref().expect("over ranks").home;
+        let internal = &self.world.internal;
+        let mut sends: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
+        // Per rank sending here: its partitions, in order, and their words.
+        let mut recvs: BTreeMap<usize, (Vec<usize>, usize)> = BTreeMap::new();
+        for (p, (&from, &to)) in old.iter().zip(home).enumerate() {
+            if from == to {
+                continue;
+            }
+            if from == me {
+                let words = sends.entry(to as usize).or_default();
+                words.extend(internal.partition_words(p));
+            }
+            if to == me {
+                let (parts, len) = recvs.entry(from as usize).or_default();
+                parts.push(p);
+                *len += internal.moved_words(p);
+            }
+        }
+        let lens: Vec<(usize, usize)> = recvs.iter().map(|(&r, &(_, len))| (r, len)).collect();
+        let received =
+            (self.exec).exchange_words(sends.into_iter().collect(), &lens, &mut || {})?;
+        let mut arrived = Vec::new();
+        for ((parts, _), words) in recvs.into_values().zip(received) {
+            let mut at = 0;
+            for p in parts {
+                let len = internal.moved_words(p);
+                let Some(words) = words.get(at..at + len) else {
+                    return Err(CommError(format!(
+                        "rank {me}: partition {p}'s elements arrived cut short"
+                    )));
+                };
+                arrived.push((p, words.to_vec()));
+                at += len;
+            }
+        }
+        let keep = |p: usize| home[p] == me;
+        (Arc::make_mut(&mut self.world.internal).place_again(keep, arrived))
+            .map_err(|m| CommError(format!("rank {me}: {m}")))
     }
 }
 

@@ -7,7 +7,9 @@
 //! rank folds the partials in task order. The split does not depend on the
 //! rank count, so the sums have the same bits on every executor, and over
 //! ranks no rank repeats them all (at 32 simulated ranks on the 10k twister
-//! they had been about 5 % of all CPU).
+//! they had been about 5 % of all CPU). Over ranks a rank holds the
+//! internal elements of its own partitions only: each element's energy is
+//! computed there and sent to the rank that sums its task.
 
 use std::time::Instant;
 
@@ -89,6 +91,9 @@ struct Plan<'a> {
     active: Vec<(&'a StencilKey, &'a LayerState)>,
     candidates: &'a [StencilKey],
     tasks: Vec<Task>,
+    /// Over ranks, per task, the elastic energy of the element tasks this
+    /// rank sums ([`Engine::elastic_by_task`]).
+    elastic: Option<Vec<Option<f64>>>,
 }
 
 impl<'a> Plan<'a> {
@@ -105,6 +110,7 @@ impl<'a> Plan<'a> {
             active,
             candidates,
             tasks,
+            elastic: None,
         }
     }
 
@@ -124,7 +130,12 @@ impl<'a> Plan<'a> {
                 }
                 (s.linear, s.angular) = (lin.to_array(), ang.to_array());
             }
-            Task::Elements(a, b) => s.elastic = w.internal.energy_of(&w.x, a..b),
+            Task::Elements(a, b) => {
+                s.elastic = match &self.elastic {
+                    Some(summed) => summed[t].expect("an element task summed on its rank"),
+                    None => w.internal.energy_of(&w.x, a..b),
+                }
+            }
             Task::Active(a, b) => {
                 for (key, state) in &self.active[a..b] {
                     let x = key.v.map(|i| w.x[i as usize]);
@@ -153,17 +164,70 @@ impl<E: Executor> Engine<E> {
     /// smallest closest distance of `candidates`; the tasks dealt round
     /// robin over the ranks (a collective).
     pub(super) fn stats_sums(&self, candidates: &[StencilKey]) -> Result<Sums, CommError> {
-        let plan = Plan::new(&self.world, candidates);
+        let mut plan = Plan::new(&self.world, candidates);
         let ranks = self.exec.ranks() as u32;
         let owner: Vec<u32> = (0..plan.tasks.len() as u32).map(|t| t % ranks).collect();
+        if ranks > 1 {
+            plan.elastic = Some(self.elastic_by_task(&plan.tasks, &owner)?);
+        }
         let parts = self
             .exec
             .map_on_ranks(plan.tasks.len(), &owner, &|t| plan.sums(t))?;
         Ok(Sums::fold(parts))
     }
 
+    /// **Collective over ranks** (an all-to-all). The elastic energy of
+    /// each element task (`tasks`) that this rank sums (`owner`): every
+    /// element's energy is computed on the rank that holds it and sent to
+    /// the rank that sums its task, which adds them in key order, as
+    /// [`crate::internal::InternalForces::energy_of`] does on one memory:
+    /// the same bits.
+    fn elastic_by_task(
+        &self,
+        tasks: &[Task],
+        owner: &[u32],
+    ) -> Result<Vec<Option<f64>>, CommError> {
+        let (ranks, me) = (self.exec.ranks(), self.exec.rank());
+        let first = tasks.iter().position(|t| matches!(t, Task::Elements(..)));
+        let mut parts = vec![Vec::new(); ranks];
+        for (n, e) in self.world.internal.held_energies(&self.world.x) {
+            let t = first.expect("an element task per element") + n as usize / STATS_TASK;
+            parts[owner[t] as usize].push(DVec3::new(f64::from(n), e, 0.0));
+        }
+        let (_, received) = self.exec.all_to_all_vectors(Vec::new(), parts)?;
+        let mut energies: Vec<(u32, f64)> = (received.into_iter().flatten())
+            .map(|v| (v.x as u32, v.y))
+            .collect();
+        energies.sort_unstable_by_key(|e| e.0);
+        let mut energies = energies.into_iter();
+        let mut elastic = vec![None; tasks.len()];
+        for (t, task) in tasks.iter().enumerate() {
+            let Task::Elements(a, b) = *task else {
+                continue;
+            };
+            if owner[t] as usize != me {
+                continue;
+            }
+            let mut sum = 0.0;
+            for n in a..b {
+                match energies.next() {
+                    Some((k, e)) if k as usize == n => sum += e,
+                    _ => {
+                        return Err(CommError(format!(
+                            "rank {me}: the energy of element {n} (in key order) did not arrive"
+                        )))
+                    }
+                }
+            }
+            elastic[t] = Some(sum);
+        }
+        Ok(elastic)
+    }
+
     /// (kinetic, elastic + gravity, penalty) energy at the current
-    /// (synchronized) state, as in `stats.jsonl`; on this memory alone.
+    /// (synchronized) state, as in `stats.jsonl`; on one memory (over ranks
+    /// a rank holds its partitions' internal elements only: the window's
+    /// statistics have the sums).
     pub fn energies(&self) -> (f64, f64, f64) {
         let s = Plan::new(&self.world, &[]).local();
         (s.kinetic, s.elastic + s.gravity, s.penalty)

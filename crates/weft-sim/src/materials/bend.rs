@@ -128,6 +128,27 @@ fn angle_terms(x: &[DVec3; 4]) -> Option<((f64, f64), [DVec3; 4])> {
 }
 
 impl HingeElement {
+    /// Words per element in [`HingeElement::to_words`].
+    pub const WORDS: usize = 6;
+
+    /// The element as words, every bit kept (its vertex ids exactly, as
+    /// integers below 2^53): what moves with a partition to another rank.
+    pub fn to_words(&self) -> [f64; Self::WORDS] {
+        let [a, b, c, d] = self.verts.map(f64::from);
+        [a, b, c, d, self.rest_angle, self.weight]
+    }
+
+    /// The element of [`HingeElement::to_words`]; `None` when a vertex id
+    /// is not a `u32`.
+    pub fn from_words(w: &[f64; Self::WORDS]) -> Option<Self> {
+        let id = super::vertex_id_of_word;
+        Some(Self {
+            verts: [id(w[0])?, id(w[1])?, id(w[2])?, id(w[3])?],
+            rest_angle: w[4],
+            weight: w[5],
+        })
+    }
+
     /// Builds the hinge from its rest positions. Fails when the rest edge has zero
     /// length, a rest wing is (nearly) collinear with the edge, or a coordinate is
     /// not finite.

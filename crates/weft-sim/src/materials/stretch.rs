@@ -44,6 +44,28 @@ pub struct StretchElement {
 }
 
 impl StretchElement {
+    /// Words per element in [`StretchElement::to_words`].
+    pub const WORDS: usize = 7;
+
+    /// The element as words, every bit kept (its vertex ids exactly, as
+    /// integers below 2^53): what moves with a partition to another rank.
+    pub fn to_words(&self) -> [f64; Self::WORDS] {
+        let [a, b, c] = self.verts.map(f64::from);
+        let [p, q, r] = self.dm_inv;
+        [a, b, c, p, q, r, self.area]
+    }
+
+    /// The element of [`StretchElement::to_words`]; `None` when a vertex
+    /// id is not a `u32`.
+    pub fn from_words(w: &[f64; Self::WORDS]) -> Option<Self> {
+        let id = super::vertex_id_of_word;
+        Some(Self {
+            verts: [id(w[0])?, id(w[1])?, id(w[2])?],
+            dm_inv: [w[3], w[4], w[5]],
+            area: w[6],
+        })
+    }
+
     /// Builds the element from its rest positions (which may differ from the
     /// initial shape). Fails on a non-finite or (near-)degenerate rest triangle.
     pub fn new(verts: [u32; 3], rest: [DVec3; 3]) -> Result<Self, MaterialError> {

@@ -837,14 +837,12 @@ impl<E: Executor> Engine<E> {
             }
             let elements = w.internal.mask_where(|i| !in_island[i as usize]);
             // A vertex folds calm when it is outside every island and
-            // every element it sums is calm.
+            // every element it sums is calm. (Over ranks a rank holds its
+            // partitions' elements only: a vertex it owns that sums a slot
+            // of another rank's element folds after the exchange anyway,
+            // `folds_remote`.)
             let mut waits = in_island.clone();
-            let internal = &w.internal;
-            let stretch =
-                (internal.stretch.iter().zip(&elements.stretch)).map(|(e, &c)| (&e.verts[..], c));
-            let hinges =
-                (internal.hinges.iter().zip(&elements.hinges)).map(|(e, &c)| (&e.verts[..], c));
-            for (verts, _) in stretch.chain(hinges).filter(|(_, calm)| !calm) {
+            for verts in w.internal.verts_where(&elements, false) {
                 verts.iter().for_each(|&i| waits[i as usize] = true);
             }
             if over_ranks {
