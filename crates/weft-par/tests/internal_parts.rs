@@ -1,15 +1,20 @@
 //! Over ranks a rank holds the internal elements of its own partitions
-//! only (`InternalForces::held_only`), and a partition placed on another
-//! rank moves its elements there as words (`partition_words`,
-//! `place_again`). A part must evaluate, mask, list and weigh its
-//! partitions with every bit of the whole world's elements, and a moved
-//! partition must arrive whole.
+//! and the folds of its own vertices only (`InternalForces::held_only`),
+//! and a partition placed on another rank moves its elements and its
+//! vertices' folds there as words (`partition_words`, `place_again`). A
+//! part must evaluate, mask, list, fold and weigh what it holds with every
+//! bit of the whole world's elements, a rank's share of the internal ticks
+//! must be the same from its part as from the whole, and a moved partition
+//! must arrive whole.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use glam::DVec3;
+use weft_core::NONE;
 use weft_io::scene::load_scene;
-use weft_sim::internal::InternalForces;
+use weft_sim::internal::{ElementMask, InternalForces, Moved};
+use weft_sim::share::RankShare;
 use weft_sim::{Serial, World};
 use weft_testkit::Rng;
 
@@ -31,6 +36,26 @@ fn placement(rng: &mut Rng, ranks: u64) -> Vec<u32> {
     (0..PARTITIONS).map(|_| rng.below(ranks) as u32).collect()
 }
 
+/// Whether rank `r` holds vertex `i`'s fold under `home`: the home of its
+/// partition (a vertex of no partition folds nothing), as the engine.
+fn holds_fold<'a>(w: &'a World, home: &[u32], r: u32) -> impl Fn(usize) -> bool + 'a {
+    let home = home.to_vec();
+    let of_vertex = &w.partitioning.of_vertex;
+    move |i| {
+        of_vertex
+            .get(i)
+            .is_none_or(|&p| p == NONE || home[p as usize] == r)
+    }
+}
+
+/// The vertices whose folds move with partition `p`.
+fn vertices_of(w: &World, p: usize) -> Vec<u32> {
+    let of_vertex = &w.partitioning.of_vertex;
+    (0..of_vertex.len() as u32)
+        .filter(|&i| of_vertex[i as usize] == p as u32)
+        .collect()
+}
+
 /// Positions away from rest and random velocities: every element has a
 /// nonzero stretch, bend and damping force, and energy.
 fn state(w: &World, rng: &mut Rng) -> (Vec<DVec3>, Vec<DVec3>) {
@@ -45,7 +70,7 @@ fn evaluated(
     f: &InternalForces,
     p: usize,
     (x, v): (&[DVec3], &[DVec3]),
-    mask: Option<&weft_sim::internal::ElementMask>,
+    mask: Option<&ElementMask>,
 ) -> Vec<[u64; 3]> {
     let mut chunk = vec![DVec3::ZERO; f.partitions[p].slots.len()];
     match mask {
@@ -57,9 +82,26 @@ fn evaluated(
 
 /// What `part` holds agrees with `w`'s whole elements on every partition
 /// `held` names: the same elements, slots, evaluations (whole and masked),
-/// masks and energies, bit for bit; and it holds no other.
-fn agrees(part: &InternalForces, w: &World, held: &[bool], rng: &mut Rng) {
+/// masks and energies, bit for bit; and it holds no other. It holds the
+/// folds of the vertices `folds` names, the whole world's.
+fn agrees(
+    part: &InternalForces,
+    w: &World,
+    held: &[bool],
+    folds: &dyn Fn(usize) -> bool,
+    rng: &mut Rng,
+) {
     let whole = &w.internal;
+    for i in 0..w.num_vertices() {
+        assert_eq!(
+            part.fold_len(i),
+            whole.fold_len(i),
+            "vertex {i}'s fold length"
+        );
+        if folds(i) {
+            assert_eq!(part.incidence(i), whole.incidence(i), "vertex {i}'s fold");
+        }
+    }
     let (x, v) = state(w, rng);
     let xv = (&x[..], &v[..]);
     let pick_seed = rng.next_u64();
@@ -142,15 +184,30 @@ fn a_ranks_part_holds_its_partitions_with_the_bits_of_the_whole() {
     let mut rng = Rng(17);
     let ranks = 3;
     let home = placement(&mut rng, ranks);
-    // Every rank's part, and an empty and a full one.
     let mut key_count = 0;
     for r in 0..ranks as u32 {
         let held: Vec<bool> = home.iter().map(|&h| h == r).collect();
-        let part = whole.held_only(|p| held[p]);
+        let folds = holds_fold(&w, &home, r);
+        let part = whole.held_only(|p| held[p], &folds);
         assert!(!part.is_whole());
         assert_eq!(part.num_stencils(), whole.num_stencils());
-        agrees(&part, &w, &held, &mut rng);
+        agrees(&part, &w, &held, &folds, &mut rng);
         key_count += part.held_energies(&w.x).len();
+        for p in 0..PARTITIONS {
+            assert_eq!(part.reads(p), whole.reads(p), "partition {p}'s reads");
+        }
+        // The rank's share of the internal ticks: the same from its part
+        // as from the whole world.
+        let mut w_part = w.clone();
+        w_part.internal = Arc::new(part);
+        let share = |w: &World| RankShare::placed(w, r as usize, ranks as usize, home.clone());
+        let (from_part, from_whole) = (share(&w_part), share(&w));
+        assert_eq!(
+            format!("{from_part:?}"),
+            format!("{from_whole:?}"),
+            "rank {r}'s share"
+        );
+        assert!(!from_whole.send_slots.is_empty() && !from_whole.recv_slots.is_empty());
     }
     assert_eq!(
         key_count,
@@ -159,31 +216,30 @@ fn a_ranks_part_holds_its_partitions_with_the_bits_of_the_whole() {
     );
     for all in [false, true] {
         let held = vec![all; PARTITIONS];
-        agrees(&whole.held_only(|_| all), &w, &held, &mut rng);
-    }
-    // (The slots every rank folds stay whole, as the evaluation needs.)
-    let part = whole.held_only(|p| home[p] == 0);
-    let mut out = vec![DVec3::ZERO; whole.num_slots()];
-    let bounds = whole.slot_bounds();
-    let own: Vec<bool> = home.iter().map(|&h| h == 0).collect();
-    part.evaluate(&Serial, &bounds, &w.x, &w.v, &mut out, Some(&own));
-    for i in 0..w.num_vertices() {
-        assert_eq!(part.incidence(i), whole.incidence(i), "vertex {i}'s fold");
-    }
-    for p in 0..PARTITIONS {
-        assert_eq!(part.reads(p), whole.reads(p), "partition {p}'s reads");
+        let part = whole.held_only(|_| all, |_| all);
+        agrees(&part, &w, &held, &|_| all, &mut rng);
+        // (An evaluation of the partitions `only` marks reads those only.)
+        let mut out = vec![DVec3::ZERO; whole.num_slots()];
+        part.evaluate(
+            &Serial,
+            &whole.slot_bounds(),
+            &w.x,
+            &w.v,
+            &mut out,
+            Some(&held),
+        );
     }
 }
 
 #[test]
-fn partitions_placed_again_move_their_elements_with_every_bit() {
+fn partitions_placed_again_move_their_elements_and_folds_with_every_bit() {
     let w = crumple();
     let whole = &w.internal;
     let mut rng = Rng(29);
     let ranks = 3u64;
     let mut home = placement(&mut rng, ranks);
     let mut parts: Vec<InternalForces> = (0..ranks as u32)
-        .map(|r| whole.held_only(|p| home[p] == r))
+        .map(|r| whole.held_only(|p| home[p] == r, holds_fold(&w, &home, r)))
         .collect();
     for round in 0..4 {
         // Every third round all on one rank: the others hold nothing.
@@ -191,21 +247,27 @@ fn partitions_placed_again_move_their_elements_with_every_bit() {
             2 => vec![rng.below(ranks) as u32; PARTITIONS],
             _ => placement(&mut rng, ranks),
         };
-        let words: Vec<Vec<f64>> = (0..PARTITIONS)
-            .map(|p| parts[home[p] as usize].partition_words(p))
-            .collect();
-        for (p, words) in words.iter().enumerate() {
-            assert_eq!(words.len(), whole.moved_words(p), "partition {p}'s words");
+        let moved = |p: usize| Moved {
+            partition: p,
+            vertices: vertices_of(&w, p),
+            words: parts[home[p] as usize].partition_words(p, &vertices_of(&w, p)),
+        };
+        let moved: Vec<Moved> = (0..PARTITIONS).map(moved).collect();
+        for m in &moved {
+            let expected = whole.moved_words(m.partition, &m.vertices);
+            assert_eq!(m.words.len(), expected, "partition {}'s words", m.partition);
         }
         for (r, part) in parts.iter_mut().enumerate() {
-            let arrived = (0..PARTITIONS)
-                .filter(|&p| next[p] == r as u32 && home[p] != r as u32)
-                .map(|p| (p, words[p].clone()))
+            let r = r as u32;
+            let arrived = (moved.iter())
+                .filter(|m| next[m.partition] == r && home[m.partition] != r)
+                .cloned()
                 .collect();
-            part.place_again(|p| next[p] == r as u32, arrived).unwrap();
-            let held: Vec<bool> = next.iter().map(|&h| h == r as u32).collect();
-            agrees(part, &w, &held, &mut rng);
-            let fresh = whole.held_only(|p| held[p]);
+            let folds = holds_fold(&w, &next, r);
+            part.place_again(|p| next[p] == r, &folds, arrived).unwrap();
+            let held: Vec<bool> = next.iter().map(|&h| h == r).collect();
+            agrees(part, &w, &held, &folds, &mut rng);
+            let fresh = whole.held_only(|p| held[p], &folds);
             assert_eq!(part.stretch, fresh.stretch, "round {round}, rank {r}");
             assert_eq!(part.hinges, fresh.hinges, "round {round}, rank {r}");
             assert_eq!(part.stretch_material, fresh.stretch_material);
@@ -219,38 +281,68 @@ fn partitions_placed_again_move_their_elements_with_every_bit() {
 fn a_moved_partition_that_does_not_arrive_whole_is_an_error_naming_it() {
     let w = crumple();
     let whole = &w.internal;
-    let part = whole.held_only(|p| p % 2 == 0);
-    let words = part.partition_words(2);
-    let mut other = whole.held_only(|p| p % 2 == 1);
+    let odd = |p: usize| p % 2 == 1;
+    let home: Vec<u32> = (0..PARTITIONS as u32).map(|p| p % 2).collect();
+    let part = whole.held_only(|p| !odd(p), holds_fold(&w, &home, 0));
+    let vertices = vertices_of(&w, 2);
+    assert!(!vertices.is_empty());
+    let words = part.partition_words(2, &vertices);
+    let other = whole.held_only(odd, holds_fold(&w, &home, 1));
+    let mut next = home.clone();
+    next[2] = 1;
+    let arrive = |words: Vec<f64>| {
+        let moved = Moved {
+            partition: 2,
+            vertices: vertices.clone(),
+            words,
+        };
+        other
+            .clone()
+            .place_again(|p| next[p] == 1, holds_fold(&w, &next, 1), vec![moved])
+    };
     // Missing.
-    let err = other
-        .clone()
-        .place_again(|p| p == 2, Vec::new())
+    let err = (other.clone())
+        .place_again(|p| next[p] == 1, holds_fold(&w, &next, 1), Vec::new())
         .unwrap_err();
     assert!(
         err.contains("partition 2") && err.contains("did not arrive"),
         "{err}"
     );
-    // Cut short.
-    let short = vec![(2, words[..words.len() - 1].to_vec())];
-    let err = other.clone().place_again(|p| p == 2, short).unwrap_err();
+    // Cut short in the elements, and in the folds.
+    let elements = whole.moved_words(2, &[]);
+    let err = arrive(words[..elements - 1].to_vec()).unwrap_err();
     assert!(
         err.contains("partition 2") && err.contains("words instead of"),
         "{err}"
     );
-    // A vertex id that is not one, and a material out of range.
-    for (at, bad, says) in [(0, 0.5, "not a vertex id"), (7, 1e6, "does not decode")] {
+    let err = arrive(words[..words.len() - 1].to_vec()).unwrap_err();
+    assert!(
+        err.contains("fold has") && err.contains("slots instead of"),
+        "{err}"
+    );
+    // A vertex id that is not one, a material out of range, a slot that
+    // is not one.
+    let cases = [
+        (0, 0.5, "not a vertex id"),
+        (7, 1e6, "does not decode"),
+        (elements, -1.0, "not one"),
+    ];
+    for (at, bad, says) in cases {
         let mut broken = words.clone();
         broken[at] = bad;
-        let err = other
-            .clone()
-            .place_again(|p| p == 2, vec![(2, broken)])
-            .unwrap_err();
-        assert!(err.contains("partition 2") && err.contains(says), "{err}");
+        let err = arrive(broken).unwrap_err();
+        assert!(err.contains(says), "{err}");
     }
+    // The fold of a vertex (of partition 0) that no rank sent.
+    let mut folds_of = home.clone();
+    folds_of[0] = 1;
+    let err = (other.clone())
+        .place_again(|p| home[p] == 1, holds_fold(&w, &folds_of, 1), Vec::new())
+        .unwrap_err();
+    assert!(
+        err.contains("vertex") && err.contains("did not arrive"),
+        "{err}"
+    );
     // Whole, it arrives.
-    other
-        .place_again(|p| p == 2 || p % 2 == 1, vec![(2, words)])
-        .unwrap();
-    assert!(other.holds(2) && other.holds(1) && !other.holds(0));
+    arrive(words).unwrap();
 }

@@ -11,13 +11,15 @@
 //! neighbouring slots rather than one slot per element scattered over the
 //! partition.
 //!
-//! Over ranks a rank keeps the elements of the partitions placed on it only
+//! Over ranks a rank keeps the elements of the partitions placed on it
+//! only, and the folds (the slots in key order) of the vertices it owns
 //! ([`InternalForces::held_only`]): the partitions, their slots and pieces,
-//! the per-vertex fold order and what each partition reads stay whole (the
-//! plan every rank computes alike reads them), and the elements of a
-//! partition placed again elsewhere move there as words
+//! each vertex's fold length and what each partition reads stay whole (the
+//! plan every rank computes alike reads them), and a partition placed again
+//! elsewhere moves its elements and its vertices' folds there as words
 //! ([`InternalForces::partition_words`], [`InternalForces::place_again`]).
 
+use std::collections::BTreeMap;
 use std::ops::Range;
 
 use glam::DVec3;
@@ -147,9 +149,13 @@ pub struct InternalForces {
     /// part (`stretch_key` says it).
     stretch_by_key: Vec<u32>,
     hinge_by_key: Vec<u32>,
-    /// Per-vertex CSR of output slots in global key order.
+    /// Per-vertex CSR of output slots in global key order (of a part: of
+    /// the vertices it holds the folds of, the others' runs empty).
     incidence_offsets: Vec<u32>,
     incidence: Vec<u32>,
+    /// Of a part: how many slots each vertex folds, held here or not (what
+    /// a moved fold's words measure); empty when whole.
+    fold_len: Vec<u32>,
     /// The output slot of each held element corner, from its piece's
     /// first slot: 3 per held stretch element, then 4 per held hinge, in
     /// the held storage's order.
@@ -355,6 +361,7 @@ impl InternalForces {
             hinge_by_key: by_key(&hinge_keys),
             incidence_offsets,
             incidence,
+            fold_len: Vec::new(),
             corner_slot,
             pieces_of,
             damped,
@@ -624,13 +631,26 @@ impl InternalForces {
         }
     }
 
-    /// The output slots vertex `i` sums, in global key order.
+    /// The output slots vertex `i` sums, in global key order (of a part:
+    /// a vertex whose fold it holds; another is a bug of the caller).
     pub fn incidence(&self, i: usize) -> &[u32] {
         let (a, b) = (
             self.incidence_offsets[i] as usize,
             self.incidence_offsets[i + 1] as usize,
         );
+        assert!(
+            self.whole || b - a == self.fold_len[i] as usize,
+            "vertex {i}'s fold is not held here"
+        );
         &self.incidence[a..b]
+    }
+
+    /// How many slots vertex `i` folds (held here or not).
+    pub fn fold_len(&self, i: usize) -> usize {
+        match self.whole {
+            true => (self.incidence_offsets[i + 1] - self.incidence_offsets[i]) as usize,
+            false => self.fold_len[i] as usize,
+        }
     }
 
     /// The vertex of each output slot of partition `p` (held here), in
@@ -663,9 +683,12 @@ impl InternalForces {
         out
     }
 
-    /// The ordered fold of vertex `i`'s contributions (global key order).
+    /// The ordered fold of vertex `i`'s contributions (global key order;
+    /// a whole world's: over ranks a rank folds its slots at their places,
+    /// [`crate::share::RankSlots`]).
     #[inline]
     pub fn fold(&self, i: usize, out: &[DVec3]) -> DVec3 {
+        debug_assert!(self.whole, "a whole world's fold");
         let (a, b) = (
             self.incidence_offsets[i] as usize,
             self.incidence_offsets[i + 1] as usize,
@@ -804,11 +827,16 @@ impl InternalForces {
     }
 
     /// A rank's part of a whole world's elements: those of the partitions
-    /// `keep` names. The partitions, their slots and pieces, the per-vertex
-    /// fold and what each partition reads stay whole; each held element
-    /// also keeps its place in key order (for the statistics' sums,
-    /// [`InternalForces::held_energies`]).
-    pub fn held_only(&self, keep: impl Fn(usize) -> bool) -> Self {
+    /// `keep` names, and the folds (the slots in key order) of the vertices
+    /// `holds_fold` names. The partitions, their slots and pieces, each
+    /// vertex's fold length and what each partition reads stay whole; each
+    /// held element also keeps its place in key order (for the statistics'
+    /// sums, [`InternalForces::held_energies`]).
+    pub fn held_only(
+        &self,
+        keep: impl Fn(usize) -> bool,
+        holds_fold: impl Fn(usize) -> bool,
+    ) -> Self {
         self.assert_whole("a rank's part");
         let inverse = |by_key: &[u32]| {
             let mut key = vec![0u32; by_key.len()];
@@ -825,7 +853,37 @@ impl InternalForces {
             part.append_held(self, p, (&keys.0, &keys.1), &mut hinge_corners);
         }
         part.corner_slot.extend(hinge_corners);
+        let held_folds = |i: usize| holds_fold(i).then(|| Ok(self.incidence(i).to_vec()));
+        part.hold_folds(held_folds)
+            .expect("every fold is held whole");
         part
+    }
+
+    /// Fills this part's folds: vertex `i`'s is `fold_of(i)` (`None`: not
+    /// held here), which must hold [`InternalForces::fold_len`] slots.
+    fn hold_folds(
+        &mut self,
+        mut fold_of: impl FnMut(usize) -> Option<Result<Vec<u32>, String>>,
+    ) -> Result<(), String> {
+        let n = self.fold_len.len();
+        let (mut offsets, mut slots) = (Vec::with_capacity(n + 1), Vec::new());
+        offsets.push(0);
+        for i in 0..n {
+            if let Some(fold) = fold_of(i) {
+                let fold = fold?;
+                if fold.len() != self.fold_len[i] as usize {
+                    return Err(format!(
+                        "vertex {i}'s fold has {} slots instead of {}",
+                        fold.len(),
+                        self.fold_len[i]
+                    ));
+                }
+                slots.extend(fold);
+            }
+            offsets.push(slots.len() as u32);
+        }
+        (self.incidence_offsets, self.incidence) = (offsets, slots);
+        Ok(())
     }
 
     /// Appends partition `p`'s elements as `from` holds them (with their
@@ -861,7 +919,8 @@ impl InternalForces {
             .extend_from_slice(&from.corner_slot[hinges_at + 4 * h.start..hinges_at + 4 * h.end]);
     }
 
-    /// A copy of what stays whole in a rank's part, with no element.
+    /// A copy of what stays whole in a rank's part, with no element and
+    /// no fold.
     fn clone_global(&self) -> Self {
         Self {
             stretch: Vec::new(),
@@ -883,8 +942,11 @@ impl InternalForces {
             piece_order: self.piece_order.clone(),
             stretch_by_key: Vec::new(),
             hinge_by_key: Vec::new(),
-            incidence_offsets: self.incidence_offsets.clone(),
-            incidence: self.incidence.clone(),
+            incidence_offsets: Vec::new(),
+            incidence: Vec::new(),
+            fold_len: (0..self.incidence_offsets.len().saturating_sub(1))
+                .map(|i| self.fold_len(i) as u32)
+                .collect(),
             corner_slot: Vec::new(),
             pieces_of: self.pieces_of.clone(),
             damped: self.damped,
@@ -923,21 +985,23 @@ impl InternalForces {
         energies
     }
 
-    /// How many words partition `p`'s elements move as
-    /// ([`InternalForces::partition_words`]).
-    pub fn moved_words(&self, p: usize) -> usize {
+    /// How many words partition `p`'s elements and the folds of
+    /// `vertices` move as ([`InternalForces::partition_words`]).
+    pub fn moved_words(&self, p: usize, vertices: &[u32]) -> usize {
         let part = &self.partitions[p];
-        MOVED_WORDS * (part.stretch.len() + part.hinges.len())
+        let folds: usize = vertices.iter().map(|&i| self.fold_len(i as usize)).sum();
+        MOVED_WORDS * (part.stretch.len() + part.hinges.len()) + folds
     }
 
-    /// Partition `p`'s elements (held here) as words, every bit kept, for
+    /// Partition `p`'s elements (held here) and the folds of `vertices`
+    /// (held here: those that move with it) as words, every bit kept, for
     /// the rank it is placed on next: per stretch element its words, its
     /// material, its place in key order and its corners' slots, then the
-    /// same per hinge.
-    pub fn partition_words(&self, p: usize) -> Vec<f64> {
+    /// same per hinge, then each vertex's slots.
+    pub fn partition_words(&self, p: usize, vertices: &[u32]) -> Vec<f64> {
         assert!(!self.whole, "a rank's part keeps its elements' keys");
         let (part, at) = (&self.partitions[p], self.held_at(p));
-        let mut words = Vec::with_capacity(self.moved_words(p));
+        let mut words = Vec::with_capacity(self.moved_words(p, vertices));
         let hinge_corners = &self.corner_slot[3 * self.stretch.len()..];
         for l in at.stretch..at.stretch + part.stretch.len() {
             words.extend(self.stretch[l].to_words());
@@ -959,41 +1023,81 @@ impl InternalForces {
                     .map(|&c| f64::from(c)),
             );
         }
+        for &i in vertices {
+            words.extend(self.incidence(i as usize).iter().map(|&s| f64::from(s)));
+        }
         words
     }
 
     /// A rank's part placed again: it holds the partitions `keep` names
-    /// from now on, those it held kept as they are and the others taken
-    /// from `arrived` (partition, its [`InternalForces::partition_words`]
-    /// from the rank that held it). An error names a partition whose words
-    /// are missing or do not decode.
+    /// and the folds of the vertices `holds_fold` names from now on, those
+    /// it held kept as they are and the others taken from `arrived` (the
+    /// [`InternalForces::partition_words`] of a partition and the vertices
+    /// that moved with it, from the rank that held them). An error names a
+    /// partition or vertex whose words are missing or do not decode.
     pub fn place_again(
         &mut self,
         keep: impl Fn(usize) -> bool,
-        arrived: Vec<(usize, Vec<f64>)>,
+        holds_fold: impl Fn(usize) -> bool,
+        arrived: Vec<Moved>,
     ) -> Result<(), String> {
         assert!(!self.whole, "a rank's part keeps its elements' keys");
-        let mut arrived_for = vec![None; self.partitions.len()];
-        for (p, words) in arrived {
-            arrived_for[p] = Some(words);
+        let mut arrived_for: Vec<Option<Moved>> = vec![None; self.partitions.len()];
+        for moved in arrived {
+            let p = moved.partition;
+            arrived_for[p] = Some(moved);
         }
         let mut next = self.clone_global();
         next.held = vec![None; self.partitions.len()];
         let mut hinge_corners = Vec::new();
+        let mut folds: BTreeMap<u32, Vec<u32>> = BTreeMap::new();
         for p in (0..self.partitions.len()).filter(|&p| keep(p)) {
             if self.holds(p) {
                 let keys = (&self.stretch_key[..], &self.hinge_key[..]);
                 next.append_held(self, p, keys, &mut hinge_corners);
                 continue;
             }
-            let words = (arrived_for[p].take())
+            let moved = (arrived_for[p].take())
                 .ok_or_else(|| format!("partition {p}'s elements did not arrive"))?;
-            next.append_moved(p, &words, &mut hinge_corners)
+            let (elements, rest) = moved
+                .words
+                .split_at(self.moved_words(p, &[]).min(moved.words.len()));
+            next.append_moved(p, elements, &mut hinge_corners)
                 .map_err(|what| format!("partition {p}'s elements arrived with {what}"))?;
+            let mut rest = rest.iter();
+            for &i in &moved.vertices {
+                let fold: Option<Vec<u32>> = (rest.by_ref().take(self.fold_len(i as usize)))
+                    .map(|&s| whole_below(s, self.num_slots() as u32))
+                    .collect();
+                let fold = fold.ok_or_else(|| {
+                    format!("vertex {i}'s fold arrived with a slot that is not one")
+                })?;
+                folds.insert(i, fold);
+            }
+            if rest.next().is_some() {
+                return Err(format!(
+                    "partition {p}'s words arrived with more than its elements and folds"
+                ));
+            }
         }
         next.corner_slot.extend(hinge_corners);
+        let fold_of = |i: usize| {
+            holds_fold(i).then(|| match folds.remove(&(i as u32)) {
+                Some(fold) => Ok(fold),
+                None if self.incidence_here(i).len() == self.fold_len(i) => {
+                    Ok(self.incidence_here(i).to_vec())
+                }
+                None => Err(format!("vertex {i}'s fold did not arrive")),
+            })
+        };
+        next.hold_folds(fold_of)?;
         *self = next;
         Ok(())
+    }
+
+    /// The slots of vertex `i`'s fold held here (none where it is not).
+    fn incidence_here(&self, i: usize) -> &[u32] {
+        &self.incidence[self.incidence_offsets[i] as usize..self.incidence_offsets[i + 1] as usize]
     }
 
     /// Appends partition `p`'s elements from their
@@ -1006,12 +1110,9 @@ impl InternalForces {
         words: &[f64],
         hinge_corners: &mut Vec<u16>,
     ) -> Result<(), String> {
-        if words.len() != self.moved_words(p) {
-            return Err(format!(
-                "{} words instead of {}",
-                words.len(),
-                self.moved_words(p)
-            ));
+        let expected = self.moved_words(p, &[]);
+        if words.len() != expected {
+            return Err(format!("{} words instead of {expected}", words.len()));
         }
         self.held[p] = Some(Held {
             stretch: self.stretch.len(),
@@ -1022,9 +1123,7 @@ impl InternalForces {
         // corners' slots, each a whole number below its bound.
         let split =
             |w: &[f64], own: usize, keys: usize| -> Option<(Vec<f64>, u16, u32, Vec<u16>)> {
-                let int = |x: f64, below: u32| -> Option<u32> {
-                    ((0.0..f64::from(below)).contains(&x) && x.fract() == 0.0).then_some(x as u32)
-                };
+                let int = whole_below;
                 let material = int(w[own], materials)? as u16;
                 let key = int(w[own + 1], keys as u32)?;
                 let corners = (w[own + 2..].iter())
@@ -1055,6 +1154,23 @@ impl InternalForces {
         }
         Ok(())
     }
+}
+
+/// A partition's elements and the folds of the vertices that move with
+/// it, as words ([`InternalForces::partition_words`]), arrived from the
+/// rank that held them.
+#[derive(Clone, Debug)]
+pub struct Moved {
+    pub partition: usize,
+    /// The vertices whose folds follow the elements, in the order sent.
+    pub vertices: Vec<u32>,
+    pub words: Vec<f64>,
+}
+
+/// The whole number below `below` that word `x` holds exactly; `None` for
+/// anything else.
+fn whole_below(x: f64, below: u32) -> Option<u32> {
+    ((0.0..f64::from(below)).contains(&x) && x.fract() == 0.0).then_some(x as u32)
 }
 
 /// All elements in global key order (see [`InternalForces::key_ordered`]).

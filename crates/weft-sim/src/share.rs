@@ -263,22 +263,40 @@ impl RankShare {
         };
         let owner = owner_under(&home);
         let reference_owner = owner_under(&internal.home_ranks(ranks));
-        let mut slot_partition = vec![0u32; internal.num_slots()];
-        for (p, part) in internal.partitions.iter().enumerate() {
-            slot_partition[part.slots.clone()].fill(p as u32);
-        }
-        // (from, to) → slots computed on `from`, folded on `to`.
+        // The partition of a slot (the partitions' slots are consecutive
+        // runs in partition order).
+        let starts: Vec<usize> = internal.partitions.iter().map(|p| p.slots.start).collect();
+        let slot_partition = |s: u32| starts.partition_point(|&start| start <= s as usize) - 1;
+        // (from, to) → slots computed on `from`, folded on `to`, of this
+        // rank's: what it receives for the vertices it owns (their folds
+        // are held here), and what its partitions compute for the dynamic
+        // vertices (those that fold) another rank owns.
         let mut travel: BTreeMap<(usize, usize), Vec<u32>> = BTreeMap::new();
         let mut owned = vec![Vec::new(); ranks];
         let mut folds_remote = vec![false; n];
         for i in 0..n {
             let to = owner[i] as usize;
             owned[to].push(i as u32);
+            if to != rank {
+                continue;
+            }
             for &s in internal.incidence(i) {
-                let from = home[slot_partition[s as usize] as usize] as usize;
+                let from = home[slot_partition(s)] as usize;
                 if from != to {
                     travel.entry((from, to)).or_default().push(s);
-                    folds_remote[i] |= to == rank;
+                    folds_remote[i] = true;
+                }
+            }
+        }
+        for p in (0..home.len()).filter(|&p| home[p] as usize == rank) {
+            let first = internal.partitions[p].slots.start;
+            for (k, i) in internal.slot_vertices(p).into_iter().enumerate() {
+                let to = owner[i as usize] as usize;
+                if to != rank && world.inv_mass[i as usize] > 0.0 {
+                    travel
+                        .entry((rank, to))
+                        .or_default()
+                        .push((first + k) as u32);
                 }
             }
         }
@@ -315,7 +333,7 @@ impl RankShare {
             slots.dedup();
             if from == rank {
                 for &s in &slots {
-                    boundary_partition[slot_partition[s as usize] as usize] = true;
+                    boundary_partition[slot_partition(s)] = true;
                 }
                 send_slots.push((to, slots));
             } else if to == rank {

@@ -185,9 +185,12 @@ impl<E: Executor> Engine<E> {
             // A vertex's breakpoints are stored by its owner only; others
             // fetch what their tasks read.
             traj.hold_only(share.owner.clone(), share.rank as u32);
-            // The internal elements of this rank's partitions only.
+            // The internal elements of this rank's partitions only, and the
+            // folds of the vertices it owns.
             let (home, me) = (&share.home, share.rank as u32);
-            world.internal = Arc::new(world.internal.held_only(|p| home[p] == me));
+            let folds = placement::holds_fold(&world.partitioning.of_vertex, home, me);
+            let part = world.internal.held_only(|p| home[p] == me, folds);
+            world.internal = Arc::new(part);
         }
         // (After `hold_only`: the columns hold the vertices held here.)
         traj.make_staged_columns();

@@ -32,7 +32,9 @@ use glam::DVec3;
 
 use super::Engine;
 use crate::executor::{CommError, Executor};
+use crate::internal::Moved;
 use crate::share::RankShare;
+use weft_core::NONE;
 
 /// The partitions are placed again only when the largest load of a rank
 /// is this fraction above the mean (measured times vary from window to
@@ -113,29 +115,35 @@ impl<E: Executor> Engine<E> {
     }
 
     /// Over ranks, before the partitions are placed on `home`: each
-    /// partition that changes rank sends its elements from the rank that
-    /// held it to the one it goes to (in one message per pair of ranks,
-    /// partitions in order), and each rank holds the elements of its
-    /// partitions under `home` from then on.
+    /// partition that changes rank sends its elements, and the folds of
+    /// the vertices whose owner it makes (they move with it), from the rank
+    /// that held them to the one it goes to (in one message per pair of
+    /// ranks, partitions in order), and each rank holds those of its
+    /// partitions and owned vertices under `home` from then on.
     fn move_elements(&mut self, home: &[u32]) -> Result<(), CommError> {
         let me = self.exec.rank() as u32;
         let old = &self.share.as_ref().expect("over ranks").home;
-        let internal = &self.world.internal;
+        let (internal, of_vertex) = (&self.world.internal, &self.world.partitioning.of_vertex);
+        let mut moving: BTreeMap<usize, Vec<u32>> = (0..home.len())
+            .filter(|&p| old[p] != home[p] && (old[p] == me || home[p] == me))
+            .map(|p| (p, Vec::new()))
+            .collect();
+        for (i, &p) in of_vertex.iter().enumerate() {
+            if let Some(vertices) = moving.get_mut(&(p as usize)) {
+                vertices.push(i as u32);
+            }
+        }
         let mut sends: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
         // Per rank sending here: its partitions, in order, and their words.
         let mut recvs: BTreeMap<usize, (Vec<usize>, usize)> = BTreeMap::new();
-        for (p, (&from, &to)) in old.iter().zip(home).enumerate() {
-            if from == to {
-                continue;
-            }
-            if from == me {
-                let words = sends.entry(to as usize).or_default();
-                words.extend(internal.partition_words(p));
-            }
-            if to == me {
-                let (parts, len) = recvs.entry(from as usize).or_default();
+        for (&p, vertices) in &moving {
+            if old[p] == me {
+                let words = sends.entry(home[p] as usize).or_default();
+                words.extend(internal.partition_words(p, vertices));
+            } else {
+                let (parts, len) = recvs.entry(old[p] as usize).or_default();
                 parts.push(p);
-                *len += internal.moved_words(p);
+                *len += internal.moved_words(p, vertices);
             }
         }
         let lens: Vec<(usize, usize)> = recvs.iter().map(|(&r, &(_, len))| (r, len)).collect();
@@ -145,20 +153,39 @@ impl<E: Executor> Engine<E> {
         for ((parts, _), words) in recvs.into_values().zip(received) {
             let mut at = 0;
             for p in parts {
-                let len = internal.moved_words(p);
+                let vertices = moving.remove(&p).expect("listed above");
+                let len = internal.moved_words(p, &vertices);
                 let Some(words) = words.get(at..at + len) else {
                     return Err(CommError(format!(
                         "rank {me}: partition {p}'s elements arrived cut short"
                     )));
                 };
-                arrived.push((p, words.to_vec()));
+                let words = words.to_vec();
+                arrived.push(Moved {
+                    partition: p,
+                    vertices,
+                    words,
+                });
                 at += len;
             }
         }
         let keep = |p: usize| home[p] == me;
-        (Arc::make_mut(&mut self.world.internal).place_again(keep, arrived))
+        let folds = holds_fold(of_vertex, home, me);
+        let internal = Arc::make_mut(&mut self.world.internal);
+        (internal.place_again(keep, folds, arrived))
             .map_err(|m| CommError(format!("rank {me}: {m}")))
     }
+}
+
+/// Whether rank `me` holds vertex `i`'s fold (the slots it sums) with the
+/// partitions on `home` (each vertex's partition `of_vertex`): its owner
+/// does, the home of its partition; a vertex of no partition folds nothing.
+pub(super) fn holds_fold<'a>(
+    of_vertex: &'a [u32],
+    home: &'a [u32],
+    me: u32,
+) -> impl Fn(usize) -> bool + 'a {
+    move |i| (of_vertex.get(i)).is_none_or(|&p| p == NONE || home[p as usize] == me)
 }
 
 /// The partitions (of `slots` output slots each, now on ranks `home`)
