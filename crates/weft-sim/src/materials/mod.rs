@@ -52,6 +52,7 @@ pub use step::{damping_step_limit, stable_step};
 pub use stretch::StretchElement;
 
 use serde::{Deserialize, Serialize};
+use thiserror::Error;
 
 /// The vertex id a word holds exactly ([`StretchElement::to_words`]);
 /// `None` for anything but a whole number in `u32`'s range.
@@ -59,7 +60,6 @@ fn vertex_id_of_word(x: f64) -> Option<u32> {
     let whole = (0.0..=f64::from(u32::MAX)).contains(&x) && x.fract() == 0.0;
     whole.then_some(x as u32)
 }
-use thiserror::Error;
 
 /// An error in the material model: invalid parameters or a rest shape that
 /// cannot carry an element.
