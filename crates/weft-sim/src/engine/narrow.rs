@@ -13,23 +13,22 @@ use crate::trace;
 
 impl<E: Executor> Engine<E> {
     /// Over ranks: every rank gets, from the ranks that hold them, the
-    /// polylines of the vertices its tasks read (`reads[r]` for rank `r`,
-    /// in any order, repeats allowed) and does not hold itself. Every rank
-    /// works out the same traffic from the same placement, so nothing is
-    /// requested: holders send, readers receive, point to point, exact bits
-    /// (`Trajectories::fetched`). The polylines stay cached for the window.
+    /// polylines of the vertices its tasks read and does not hold itself.
+    /// `reads[r]` is what rank `r`'s tasks read (in any order, repeats
+    /// allowed): all of it for this rank, for another only the vertices
+    /// this rank holds (the rest travels between other ranks: every rank
+    /// listing every rank's reads was memory and work each one repeated).
+    /// Every rank works out the same traffic from the same placement, so
+    /// nothing is requested: holders send, readers receive, point to point,
+    /// exact bits (`Trajectories::fetched`). The polylines stay cached for
+    /// the window.
     pub(super) fn fetch_trajectories(&mut self, mut reads: Vec<Vec<u32>>) -> Result<(), CommError> {
         let me = self.exec.rank();
         let holders = self.traj.holders();
         // (holder, reader) → vertices, ascending; only pairs with this rank.
         let mut travel: std::collections::BTreeMap<(usize, usize), Vec<u32>> = Default::default();
         for (r, list) in reads.iter_mut().enumerate() {
-            // Another rank's reads matter here only where this rank holds
-            // them: dropped before the sort, which every rank would
-            // otherwise repeat for every rank's list.
-            if r != me {
-                list.retain(|&v| holders[v as usize] as usize == me);
-            }
+            debug_assert!(r == me || list.iter().all(|&v| holders[v as usize] as usize == me));
             list.sort_unstable();
             list.dedup();
             for &v in list.iter() {
@@ -106,13 +105,21 @@ impl<E: Executor> Engine<E> {
             let home = self.share.as_ref().map_or(&[][..], |s| &s.home[..]);
             let by_load: Vec<_> = order.iter().map(|&t| tasks.tasks[t].clone()).collect();
             let (assigned, _) = locality_aware(&by_load, ranks, &|p| home[p as usize] as usize);
+            // What each rank's tasks read: all of it for this rank, for
+            // another what this rank holds (what it sends there).
+            let (me, holders) = (self.exec.rank(), self.traj.holders());
             let mut reads = vec![Vec::new(); ranks];
             for (r, mine) in assigned.iter().enumerate() {
                 for &n in mine {
                     owner[n] = r as u32;
                     let task = &tasks.tasks[order[n]];
                     for &c in &tasks.order[task.range.clone()] {
-                        reads[r].extend_from_slice(&candidates[c as usize].v);
+                        let v = &candidates[c as usize].v;
+                        match r == me {
+                            true => reads[r].extend_from_slice(v),
+                            false => (reads[r])
+                                .extend(v.iter().filter(|&&i| holders[i as usize] as usize == me)),
+                        }
                         tested_on[c as usize] = r as u32;
                     }
                 }
