@@ -795,8 +795,8 @@ impl InternalForces {
 }
 
 /// The held part of the elements over ranks: a rank keeps the elements of
-/// the partitions placed on it, and they move with a partition placed
-/// again.
+/// the partitions placed on it and the folds of the vertices it owns, and
+/// both move with a partition placed again.
 impl InternalForces {
     fn assert_whole(&self, what: &str) {
         assert!(
