@@ -290,20 +290,18 @@ fn a_moved_partition_that_does_not_arrive_whole_is_an_error_naming_it() {
     let other = whole.held_only(odd, holds_fold(&w, &home, 1));
     let mut next = home.clone();
     next[2] = 1;
+    let place = |arrived: Vec<Moved>| {
+        (other.clone()).place_again(|p| next[p] == 1, holds_fold(&w, &next, 1), arrived)
+    };
     let arrive = |words: Vec<f64>| {
-        let moved = Moved {
+        place(vec![Moved {
             partition: 2,
             vertices: vertices.clone(),
             words,
-        };
-        other
-            .clone()
-            .place_again(|p| next[p] == 1, holds_fold(&w, &next, 1), vec![moved])
+        }])
     };
     // Missing.
-    let err = (other.clone())
-        .place_again(|p| next[p] == 1, holds_fold(&w, &next, 1), Vec::new())
-        .unwrap_err();
+    let err = place(Vec::new()).unwrap_err();
     assert!(
         err.contains("partition 2") && err.contains("did not arrive"),
         "{err}"

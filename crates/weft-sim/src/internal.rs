@@ -847,7 +847,6 @@ impl InternalForces {
         };
         let keys = (inverse(&self.stretch_by_key), inverse(&self.hinge_by_key));
         let mut part = self.clone_global();
-        part.held = vec![None; self.partitions.len()];
         let mut hinge_corners = Vec::new();
         for p in (0..self.partitions.len()).filter(|&p| keep(p)) {
             part.append_held(self, p, (&keys.0, &keys.1), &mut hinge_corners);
@@ -919,8 +918,8 @@ impl InternalForces {
             .extend_from_slice(&from.corner_slot[hinges_at + 4 * h.start..hinges_at + 4 * h.end]);
     }
 
-    /// A copy of what stays whole in a rank's part, with no element and
-    /// no fold.
+    /// A copy of what stays whole in a rank's part, with no element (no
+    /// partition held) and no fold.
     fn clone_global(&self) -> Self {
         Self {
             stretch: Vec::new(),
@@ -929,7 +928,7 @@ impl InternalForces {
             hinge_material: Vec::new(),
             materials: self.materials.clone(),
             partitions: self.partitions.clone(),
-            held: Vec::new(),
+            held: vec![None; self.partitions.len()],
             whole: false,
             num_stretch: self.num_stretch,
             num_hinges: self.num_hinges,
@@ -1048,7 +1047,6 @@ impl InternalForces {
             arrived_for[p] = Some(moved);
         }
         let mut next = self.clone_global();
-        next.held = vec![None; self.partitions.len()];
         let mut hinge_corners = Vec::new();
         let mut folds: BTreeMap<u32, Vec<u32>> = BTreeMap::new();
         for p in (0..self.partitions.len()).filter(|&p| keep(p)) {
