@@ -424,6 +424,7 @@ impl Trajectories {
                 let more = per_vertex.saturating_sub(self.times[c].len());
                 self.times[c].reserve_exact(more);
                 self.points[c].reserve_exact(more);
+                self.bounds[c].reserve_for(per_vertex);
             }
         }
     }

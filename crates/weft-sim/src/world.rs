@@ -305,6 +305,10 @@ impl World {
                 vertices: ids,
             });
         }
+        // (Grown object by object: their spare room would be kept for the
+        // run, on every rank.)
+        all.positions.shrink_to_fit();
+        all.triangles.shrink_to_fit();
         let nv = all.positions.len();
         let topology = Topology::build(nv, &all.triangles).map_err(|e| SimError::Mesh {
             object: "(all objects)".into(),

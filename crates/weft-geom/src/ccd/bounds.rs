@@ -153,8 +153,19 @@ impl TrajectoryBounds {
     /// The bounds of the polyline `times`, `points`.
     pub fn from_points(times: &[f64], points: &[DVec3]) -> Self {
         let mut b = Self::default();
+        b.reserve_for(points.len());
         b.update(times, points);
         b
+    }
+
+    /// Makes room for the level-0 blocks of a polyline of `len`
+    /// breakpoints, in one allocation: grown by doubling, the level that
+    /// holds 7/8 of the boxes kept up to half of its memory unused. (The
+    /// levels above are an eighth of it and are left to grow.)
+    pub fn reserve_for(&mut self, len: usize) {
+        let blocks = len / FANOUT;
+        self.first
+            .reserve_exact(blocks.saturating_sub(self.first.len()));
     }
 
     /// Forgets every breakpoint (keeps the storage).
@@ -371,6 +382,27 @@ mod tests {
 
     /// After a replaced last point the cover holds the new point (and may
     /// still hold the old one); cleared bounds start over.
+    /// Room made for a length is used without growing: built at once or
+    /// breakpoint by breakpoint up to that length, the level-0 boxes take
+    /// one allocation, with no spare room (the fetched polylines' bounds
+    /// were grown by doubling), and the boxes are those built without it.
+    #[test]
+    fn reserved_bounds_grow_into_their_room_only() {
+        for n in [1, 8, 9, 100, 513, 1000] {
+            let (ts, pts) = (times(n), wiggle(n));
+            let built = TrajectoryBounds::from_points(&ts, &pts);
+            assert!(built.first.capacity() <= (n / FANOUT).max(1), "n = {n}");
+            let mut grown = TrajectoryBounds::default();
+            grown.reserve_for(n);
+            let room = grown.first.capacity();
+            for i in 0..n {
+                grown.update(&ts[..=i], &pts[..=i]);
+            }
+            assert_eq!(grown.first.capacity(), room, "n = {n}");
+            assert_eq!((&grown.first, &grown.upper), (&built.first, &built.upper));
+        }
+    }
+
     #[test]
     fn replaced_last_points_stay_covered_and_clear_starts_over() {
         let mut pts = wiggle(300);

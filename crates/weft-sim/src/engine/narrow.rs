@@ -107,23 +107,30 @@ impl<E: Executor> Engine<E> {
             let (assigned, _) = locality_aware(&by_load, ranks, &|p| home[p as usize] as usize);
             // What each rank's tasks read: all of it for this rank, for
             // another what this rank holds (what it sends there).
+            // Each vertex is listed once per rank (`listed[v]`: the last rank
+            // that listed it; the ranks come in order): four reads per
+            // candidate with their repeats were this rank's largest buffer
+            // at its memory peak.
             let (me, holders) = (self.exec.rank(), self.traj.holders());
             let mut reads = vec![Vec::new(); ranks];
+            let mut listed = vec![u32::MAX; holders.len()];
             for (r, mine) in assigned.iter().enumerate() {
                 for &n in mine {
                     owner[n] = r as u32;
                     let task = &tasks.tasks[order[n]];
                     for &c in &tasks.order[task.range.clone()] {
-                        let v = &candidates[c as usize].v;
-                        match r == me {
-                            true => reads[r].extend_from_slice(v),
-                            false => (reads[r])
-                                .extend(v.iter().filter(|&&i| holders[i as usize] as usize == me)),
+                        for &v in &candidates[c as usize].v {
+                            let here = r == me || holders[v as usize] as usize == me;
+                            if here && listed[v as usize] != r as u32 {
+                                listed[v as usize] = r as u32;
+                                reads[r].push(v);
+                            }
                         }
                         tested_on[c as usize] = r as u32;
                     }
                 }
             }
+            drop(listed);
             self.fetch_trajectories(reads)?;
         }
         let w = &self.world;
