@@ -302,16 +302,32 @@ impl Trajectories {
     /// Storage for `n` vertices with a budget of `budget_bytes`, every
     /// vertex held here.
     pub fn new(n: usize, budget_bytes: usize) -> Self {
+        Self::held_by(vec![0; n], 0, budget_bytes)
+    }
+
+    /// Storage for the vertices `holder` gives to rank `me` (one entry per
+    /// vertex), as [`Trajectories::new`] then [`Trajectories::hold_only`]
+    /// would leave it, without first making room for every vertex (112
+    /// bytes a vertex, at the moment a rank's engine is made).
+    pub fn held_by(holder: Vec<u32>, me: u32, budget_bytes: usize) -> Self {
+        let mut column_of = Vec::with_capacity(holder.len() + 1);
+        let mut held = 0u32;
+        for &h in &holder {
+            column_of.push(held);
+            held += u32::from(h == me);
+        }
+        column_of.push(held);
+        let (n, held) = (holder.len(), held as usize);
         Self {
             start: 0,
-            times: vec![Vec::new(); n],
-            points: vec![Vec::new(); n],
-            bounds: vec![TrajectoryBounds::default(); n],
+            times: vec![Vec::new(); held],
+            points: vec![Vec::new(); held],
+            bounds: vec![TrajectoryBounds::default(); held],
             last: vec![0.0; n],
             count: vec![0; n],
-            holder: vec![0; n],
-            me: 0,
-            column_of: (0..=n as u32).collect(),
+            holder,
+            me,
+            column_of,
             cache: Default::default(),
             staged: Staged::default(),
             flushed_times: Vec::new(),
@@ -745,13 +761,12 @@ mod tests {
         let x: Vec<DVec3> = (0..n).map(|i| DVec3::new(i as f64, 0.5, -1.0)).collect();
         let holder: Vec<u32> = (0..n).map(|i| (i % 2) as u32).collect();
         let mut all = Trajectories::new(n, usize::MAX);
-        let mut ranks: Vec<Trajectories> = (0..2)
-            .map(|r| {
-                let mut t = Trajectories::new(n, usize::MAX);
-                t.hold_only(holder.clone(), r);
-                t
-            })
-            .collect();
+        // Rank 0 held all, then its own only; rank 1 made holding its own.
+        let mut ranks: Vec<Trajectories> = vec![
+            Trajectories::new(n, usize::MAX),
+            Trajectories::held_by(holder.clone(), 1, usize::MAX),
+        ];
+        ranks[0].hold_only(holder.clone(), 0);
         let bounds = [0, 3, n];
         for t in std::iter::once(&mut all).chain(ranks.iter_mut()) {
             t.begin(100, &x);

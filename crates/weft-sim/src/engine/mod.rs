@@ -180,20 +180,24 @@ impl<E: Executor> Engine<E> {
     /// the floor `eta_inf` or two triangles intersect.
     pub fn new(mut world: World, exec: E) -> Result<Self, SimError> {
         let n = world.num_vertices();
-        let mut traj = Trajectories::new(n, world.limits.trajectory_budget_bytes);
+        let budget = world.limits.trajectory_budget_bytes;
         let share = (exec.ranks() > 1).then(|| RankShare::new(&world, exec.rank(), exec.ranks()));
         if let Some(share) = &share {
-            // A vertex's breakpoints are stored by its owner only; others
-            // fetch what their tasks read.
-            traj.hold_only(share.owner.clone(), share.rank as u32);
             // The internal elements of this rank's partitions only, and the
-            // folds of the vertices it owns.
+            // folds of the vertices it owns; the whole world's go before
+            // anything else is made (they were a rank's memory peak).
             let (home, me) = (&share.home, share.rank as u32);
             let folds = placement::holds_fold(&world.partitioning.of_vertex, home, me);
             let part = world.internal.held_only(|p| home[p] == me, folds);
             world.internal = Arc::new(part);
         }
-        // (After `hold_only`: the columns hold the vertices held here.)
+        // Over ranks a vertex's breakpoints are stored by its owner only;
+        // others fetch what their tasks read.
+        let mut traj = match &share {
+            Some(share) => Trajectories::held_by(share.owner.clone(), share.rank as u32, budget),
+            None => Trajectories::new(n, budget),
+        };
+        // (The columns hold the vertices held here.)
         traj.make_staged_columns();
         reserve_trajectories(&mut traj, &world);
         let mut broad = BroadPhase::grouped(&world.partitioning.of_triangle);
