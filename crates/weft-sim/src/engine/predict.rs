@@ -132,10 +132,10 @@ impl Predictor {
     /// For `n` vertices; over ranks each vertex's samples are kept by the
     /// rank `holder` gives it, as for the window's trajectories.
     pub fn new(n: usize, holder: Option<(Vec<u32>, u32)>) -> Self {
-        let mut traj = Trajectories::new(n, usize::MAX);
-        if let Some((holder, me)) = holder {
-            traj.hold_only(holder, me);
-        }
+        let traj = match holder {
+            Some((holder, me)) => Trajectories::held_by(holder, me, usize::MAX),
+            None => Trajectories::new(n, usize::MAX),
+        };
         Self {
             traj,
             acc: Vec::new(),
