@@ -380,8 +380,6 @@ mod tests {
         }
     }
 
-    /// After a replaced last point the cover holds the new point (and may
-    /// still hold the old one); cleared bounds start over.
     /// Room made for a length is used without growing: built at once or
     /// breakpoint by breakpoint up to that length, the level-0 boxes take
     /// one allocation, with no spare room (the fetched polylines' bounds
@@ -403,6 +401,8 @@ mod tests {
         }
     }
 
+    /// After a replaced last point the cover holds the new point (and may
+    /// still hold the old one); cleared bounds start over.
     #[test]
     fn replaced_last_points_stay_covered_and_clear_starts_over() {
         let mut pts = wiggle(300);
