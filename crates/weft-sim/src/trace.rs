@@ -158,6 +158,26 @@ pub fn site(name: &'static str) -> SiteGuard {
     }
 }
 
+/// A stage of the window under one name: its span in the trace and its
+/// site for the counted collectives.
+#[must_use = "the stage lasts while the guard lives"]
+pub struct StageGuard {
+    _span: SpanGuard,
+    _site: SiteGuard,
+}
+
+/// Opens the stage `name`: a span (with an optional numeric argument) and
+/// a site of that name.
+#[inline]
+pub fn stage(name: &'static str, arg: Option<(&'static str, u64)>) -> StageGuard {
+    StageGuard {
+        _span: SpanGuard {
+            open: recording().then(|| (name, Instant::now(), arg)),
+        },
+        _site: site(name),
+    }
+}
+
 /// The calling thread's innermost site ("" outside every site).
 #[inline]
 pub fn current_site() -> &'static str {
@@ -263,8 +283,11 @@ mod tests {
         set_cap(3);
         {
             let _a = span_with("window", "window", 7);
-            let _b = span("events");
+            // A stage: a span and a site of one name.
+            let _b = stage("events", Some(("pass", 2)));
+            assert_eq!(current_site(), "events");
         }
+        assert_eq!(current_site(), "");
         std::thread::Builder::new()
             .name("worker".into())
             .spawn(|| drop(span("task")))
@@ -279,6 +302,8 @@ mod tests {
         assert_eq!(dropped, 1);
         let names: Vec<_> = spans.iter().map(|s| s.name).collect();
         assert!(names.contains(&"window") && names.contains(&"task"));
+        let events = spans.iter().find(|s| s.name == "events").unwrap();
+        assert_eq!(events.arg, Some(("pass", 2)));
         assert!(tracks.iter().any(|t| t == "worker"));
         let mut buf = Vec::new();
         write_chrome_json(&mut buf, 0, "weft", &spans, &tracks, dropped).unwrap();

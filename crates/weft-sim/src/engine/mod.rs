@@ -475,8 +475,7 @@ impl<E: Executor> Engine<E> {
         let mut island_cpu = 0.0;
         loop {
             let clock = StageClock::start(&self.exec);
-            let events_span = trace::span_with("events", "pass", rollbacks as u64);
-            let site = trace::site("events");
+            let events = trace::stage("events", Some(("pass", rollbacks as u64)));
             let mut counts = match self.run_events(t0, t1) {
                 Ok(c) => c,
                 Err(e) => {
@@ -484,7 +483,7 @@ impl<E: Executor> Engine<E> {
                     return Err(e);
                 }
             };
-            drop((events_span, site));
+            drop(events);
             let stage = (
                 &mut stages.events,
                 &mut stages.cpu.events,
@@ -498,8 +497,7 @@ impl<E: Executor> Engine<E> {
                 return Err(e);
             }
             let clock = StageClock::start(&self.exec);
-            let broad_span = trace::span("broad");
-            let site = trace::site("broad");
+            let broad = trace::stage("broad", None);
             let candidates = {
                 let w = &self.world;
                 self.broad.candidates_on(
@@ -510,7 +508,7 @@ impl<E: Executor> Engine<E> {
                     0.5 * w.schedule.eta_1,
                 )
             };
-            drop((broad_span, site));
+            drop(broad);
             let stage = (
                 &mut stages.broad,
                 &mut stages.cpu.broad,
@@ -519,8 +517,7 @@ impl<E: Executor> Engine<E> {
             clock.add_to(&self.exec, stage);
             let clock = StageClock::start(&self.exec);
             let count = candidates.as_ref().map_or(0, |c| c.len() as u64);
-            let narrow_span = trace::span_with("narrow", "candidates", count);
-            let site = trace::site("narrow");
+            let narrow = trace::stage("narrow", Some(("candidates", count)));
             let found = candidates.and_then(|c| Ok((self.narrow_phase(&c)?, c)));
             let ((reported, tested_on), candidates) = match found {
                 Ok(found) => found,
@@ -529,7 +526,7 @@ impl<E: Executor> Engine<E> {
                     return Err(e.into());
                 }
             };
-            drop((narrow_span, site));
+            drop(narrow);
             let stage = (
                 &mut stages.narrow,
                 &mut stages.cpu.narrow,
@@ -558,8 +555,7 @@ impl<E: Executor> Engine<E> {
             }
             if reported.is_empty() {
                 let clock = StageClock::start(&self.exec);
-                let _commit_span = trace::span("commit");
-                let _site = trace::site("commit");
+                let _commit = trace::stage("commit", None);
                 let committed = (self.commit(&candidates, &tested_on, &predicted))
                     .and_then(|done| Ok((done, self.stats_sums(&candidates)?)));
                 let ((retired, unreached), sums) = match committed {
