@@ -253,28 +253,28 @@ fn certify(
     ((room > 0.0 && awake_at > t).then_some(awake_at), c.d)
 }
 
-/// [`certify`] at `t`, under the caps `cap`, of the `n` stencils `key`
-/// gives (`None`: not one to certify), on the executor in runs of
-/// [`RENEW_RUN`]; in order.
+/// [`certify`] at `t`, under each vertex's cap `cap(i)`, of the `n`
+/// stencils `key` gives (`None`: not one to certify), on the executor in
+/// runs of [`RENEW_RUN`]; in order.
 fn certify_in_runs<E: Executor>(
     exec: &E,
     w: &World,
     n: usize,
     key: &(dyn Fn(usize) -> Option<StencilKey> + Sync),
-    cap: &[f64],
+    cap: &(dyn Fn(u32) -> f64 + Sync),
     t: Tick,
 ) -> Vec<Option<(Option<Tick>, f64)>> {
     let runs = exec.map(n.div_ceil(RENEW_RUN), &|r| {
         (r * RENEW_RUN..((r + 1) * RENEW_RUN).min(n))
-            .map(|k| {
-                key(k).map(|key| {
-                    let caps = key.v.map(|i| cap[i as usize]);
-                    certify(w, key.kind, &key.v, &caps, t)
-                })
-            })
+            .map(|k| key(k).map(|key| certify(w, key.kind, &key.v, &key.v.map(cap), t)))
             .collect::<Vec<_>>()
     });
     runs.into_iter().flatten().collect()
+}
+
+/// The pass start's cap of vertex `i`: [`HEADROOM`] × its speed.
+fn start_cap(w: &World) -> impl Fn(u32) -> f64 + Sync + '_ {
+    |i| cap_of(w.v[i as usize])
 }
 
 /// Of each of the stencils `keys`, whether it is far at the pass start
@@ -290,17 +290,13 @@ pub(super) fn far_at_start<E: Executor>(
     keys: &[StencilKey],
     (t0, first_internal): (Tick, Tick),
 ) -> Vec<(Option<Tick>, f64)> {
-    let n = keys.len();
-    let runs = exec.map(n.div_ceil(RENEW_RUN), &|r| {
-        (keys[r * RENEW_RUN..((r + 1) * RENEW_RUN).min(n)].iter())
-            .map(|key| {
-                let caps = key.v.map(|i| cap_of(w.v[i as usize]));
-                let (until, d) = certify(w, key.kind, &key.v, &caps, t0);
-                (until.filter(|&u| u > first_internal), d)
-            })
-            .collect::<Vec<_>>()
-    });
-    runs.into_iter().flatten().collect()
+    let certified = certify_in_runs(exec, w, keys.len(), &|k| Some(keys[k]), &start_cap(w), t0);
+    (certified.into_iter())
+        .map(|c| {
+            let (until, d) = c.expect("each one certified");
+            (until.filter(|&u| u > first_internal), d)
+        })
+        .collect()
 }
 
 /// The speed cap a velocity sets: [`HEADROOM`] × its speed.
@@ -326,22 +322,15 @@ impl FarSet {
         (t0, first_internal, pass_end): (Tick, Tick, Tick),
         checked: &mut Checked,
     ) -> (Self, Vec<bool>) {
-        let n = w.num_vertices();
-        let mut cap = vec![f64::INFINITY; n];
-        for (key, _, pack) in candidates {
-            if mine(*pack) {
-                for &i in &key.v {
-                    cap[i as usize] = cap_of(w.v[i as usize]);
-                }
-            }
-        }
         let mut is_far = vec![false; candidates.len()];
-        // The certificates, on the executor in runs, then taken in order.
+        // The certificates, on the executor in runs, then taken in order
+        // (each vertex's cap from its speed as it is read: an array of
+        // them over every vertex was made for a few).
         let mine_key = |c: usize| {
             let (key, _, pack) = candidates[c];
             mine(pack).then_some(key)
         };
-        let certified = certify_in_runs(exec, w, candidates.len(), &mine_key, &cap, t0);
+        let certified = certify_in_runs(exec, w, candidates.len(), &mine_key, &start_cap(w), t0);
         let mut far = Vec::new();
         for (c, (&(key, depth, tag), certificate)) in candidates.iter().zip(certified).enumerate() {
             let Some((until, d)) = certificate else {
@@ -528,7 +517,8 @@ impl FarSet {
         renew.retain(|&f| !self.promoted[f as usize]);
         // The certificates, on the executor in runs, then applied in order.
         let key = |k: usize| Some(self.key[renew[k] as usize]);
-        let certified = certify_in_runs(exec, w, renew.len(), &key, &self.cap, s);
+        let cap = |i: u32| self.cap[i as usize];
+        let certified = certify_in_runs(exec, w, renew.len(), &key, &cap, s);
         let certified = certified
             .into_iter()
             .map(|c| c.expect("each one certified"));
