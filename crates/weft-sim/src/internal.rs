@@ -19,6 +19,7 @@
 //! elsewhere moves its elements and its vertices' folds there as words
 //! ([`InternalForces::partition_words`], [`InternalForces::place_again`]).
 
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 use std::ops::Range;
 
@@ -852,17 +853,19 @@ impl InternalForces {
             part.append_held(self, p, (&keys.0, &keys.1), &mut hinge_corners);
         }
         part.corner_slot.extend(hinge_corners);
-        let held_folds = |i: usize| holds_fold(i).then(|| Ok(self.incidence(i).to_vec()));
+        let held_folds = |i: usize| holds_fold(i).then(|| Ok(Cow::Borrowed(self.incidence(i))));
         part.hold_folds(held_folds)
             .expect("every fold is held whole");
         part
     }
 
     /// Fills this part's folds: vertex `i`'s is `fold_of(i)` (`None`: not
-    /// held here), which must hold [`InternalForces::fold_len`] slots.
-    fn hold_folds(
+    /// held here), which must hold [`InternalForces::fold_len`] slots
+    /// (borrowed where it is read from another part: a copy of each was an
+    /// allocation per vertex).
+    fn hold_folds<'a>(
         &mut self,
-        mut fold_of: impl FnMut(usize) -> Option<Result<Vec<u32>, String>>,
+        mut fold_of: impl FnMut(usize) -> Option<Result<Cow<'a, [u32]>, String>>,
     ) -> Result<(), String> {
         let n = self.fold_len.len();
         let (mut offsets, mut slots) = (Vec::with_capacity(n + 1), Vec::new());
@@ -877,7 +880,7 @@ impl InternalForces {
                         self.fold_len[i]
                     ));
                 }
-                slots.extend(fold);
+                slots.extend_from_slice(&fold);
             }
             offsets.push(slots.len() as u32);
         }
@@ -1081,9 +1084,9 @@ impl InternalForces {
         next.corner_slot.extend(hinge_corners);
         let fold_of = |i: usize| {
             holds_fold(i).then(|| match folds.remove(&(i as u32)) {
-                Some(fold) => Ok(fold),
+                Some(fold) => Ok(Cow::Owned(fold)),
                 None if self.incidence_here(i).len() == self.fold_len(i) => {
-                    Ok(self.incidence_here(i).to_vec())
+                    Ok(Cow::Borrowed(self.incidence_here(i)))
                 }
                 None => Err(format!("vertex {i}'s fold did not arrive")),
             })
