@@ -27,7 +27,9 @@ use glam::DVec3;
 use weft_core::{Topology, NONE};
 
 use crate::executor::{split_chunks, Executor};
-use crate::materials::{ElasticModel, HingeElement, Material, MaterialError, StretchElement};
+use crate::materials::{
+    whole_below, ElasticModel, HingeElement, Material, MaterialError, StretchElement,
+};
 
 /// One partition's share of the internal stencils.
 #[derive(Clone, Debug, PartialEq)]
@@ -396,11 +398,20 @@ impl InternalForces {
         &self.reads[self.reads_start[p] as usize..self.reads_start[p + 1] as usize]
     }
 
-    /// Where partition `p`'s elements start in the held storage; a
-    /// partition not held here is a bug of the caller (a rank evaluates
-    /// only the partitions placed on it).
-    fn held_at(&self, p: usize) -> Held {
-        self.held[p].unwrap_or_else(|| panic!("partition {p}'s elements are not held here"))
+    /// Where partition `p`'s elements lie in the held storage (its stretch
+    /// elements, its hinges); `None` where it is not held here.
+    fn held_ranges(&self, p: usize) -> Option<(Range<usize>, Range<usize>)> {
+        let (part, at) = (&self.partitions[p], self.held[p]?);
+        let stretch = at.stretch..at.stretch + part.stretch.len();
+        Some((stretch, at.hinges..at.hinges + part.hinges.len()))
+    }
+
+    /// [`InternalForces::held_ranges`] of a partition held here; another
+    /// is a bug of the caller (a rank evaluates only the partitions placed
+    /// on it).
+    fn held_at(&self, p: usize) -> (Range<usize>, Range<usize>) {
+        (self.held_ranges(p))
+            .unwrap_or_else(|| panic!("partition {p}'s elements are not held here"))
     }
 
     /// Slot bounds of the partitions, for [`Executor::for_each_chunk`].
@@ -510,13 +521,16 @@ impl InternalForces {
         let mut stretch = vec![false; self.num_stretch];
         let mut hinges = vec![false; self.num_hinges];
         for (p, part) in self.partitions.iter().enumerate() {
-            let Some(at) = self.held[p] else { continue };
-            let held = &self.stretch[at.stretch..at.stretch + part.stretch.len()];
-            for (flag, e) in stretch[part.stretch.clone()].iter_mut().zip(held) {
+            let Some((s, h)) = self.held_ranges(p) else {
+                continue;
+            };
+            for (flag, e) in stretch[part.stretch.clone()]
+                .iter_mut()
+                .zip(&self.stretch[s])
+            {
                 *flag = e.verts.iter().all(|&i| pick(i));
             }
-            let held = &self.hinges[at.hinges..at.hinges + part.hinges.len()];
-            for (flag, e) in hinges[part.hinges.clone()].iter_mut().zip(held) {
+            for (flag, e) in hinges[part.hinges.clone()].iter_mut().zip(&self.hinges[h]) {
                 *flag = e.verts.iter().all(|&i| pick(i));
             }
         }
@@ -588,10 +602,10 @@ impl InternalForces {
         };
         // Storage index `s` (`h`) is held element `s - ds` (`h - dh`).
         let p = piece.partition as usize;
-        let (part, at) = (&self.partitions[p], self.held_at(p));
+        let (part, (s_at, h_at)) = (&self.partitions[p], self.held_at(p));
         let (ds, dh) = (
-            part.stretch.start - at.stretch,
-            part.hinges.start - at.hinges,
+            part.stretch.start - s_at.start,
+            part.hinges.start - h_at.start,
         );
         for s in piece.stretch.clone() {
             if mask.is_some_and(|(m, want)| m.stretch[s] != want) {
@@ -661,10 +675,10 @@ impl InternalForces {
         let first = part.slots.start;
         let mut out = vec![NONE; part.slots.len()];
         let ns = self.stretch.len();
-        let held = self.held_at(p);
+        let (s_at, h_at) = self.held_at(p);
         let (ds, dh) = (
-            part.stretch.start - held.stretch,
-            part.hinges.start - held.hinges,
+            part.stretch.start - s_at.start,
+            part.hinges.start - h_at.start,
         );
         for k in self.pieces_of[p].clone() {
             let piece = &self.pieces[k];
@@ -806,20 +820,24 @@ impl InternalForces {
         );
     }
 
+    fn assert_part(&self) {
+        assert!(!self.whole, "a rank's part keeps its elements' keys");
+    }
+
     /// The vertices of each held element whose entry in `mask` is `want`.
     pub fn verts_where<'a>(
         &'a self,
         mask: &'a ElementMask,
         want: bool,
     ) -> impl Iterator<Item = &'a [u32]> + 'a {
-        let held =
-            (self.partitions.iter().zip(&self.held)).filter_map(|(part, at)| Some((part, (*at)?)));
-        held.flat_map(move |(part, at)| {
-            let stretch = (self.stretch[at.stretch..at.stretch + part.stretch.len()].iter())
+        let held = (0..self.partitions.len()).filter_map(|p| Some((p, self.held_ranges(p)?)));
+        held.flat_map(move |(p, (s, h))| {
+            let part = &self.partitions[p];
+            let stretch = (self.stretch[s].iter())
                 .zip(&mask.stretch[part.stretch.clone()])
                 .filter(move |(_, &m)| m == want)
                 .map(|(e, _)| &e.verts[..]);
-            let hinges = (self.hinges[at.hinges..at.hinges + part.hinges.len()].iter())
+            let hinges = (self.hinges[h].iter())
                 .zip(&mask.hinges[part.hinges.clone()])
                 .filter(move |(_, &m)| m == want)
                 .map(|(e, _)| &e.verts[..]);
@@ -899,13 +917,11 @@ impl InternalForces {
         (stretch_key, hinge_key): (&[u32], &[u32]),
         hinge_corners: &mut Vec<u16>,
     ) {
-        let (part, at) = (&from.partitions[p], from.held_at(p));
+        let (s, h) = from.held_at(p);
         self.held[p] = Some(Held {
             stretch: self.stretch.len(),
             hinges: self.hinges.len(),
         });
-        let s = at.stretch..at.stretch + part.stretch.len();
-        let h = at.hinges..at.hinges + part.hinges.len();
         self.stretch.extend_from_slice(&from.stretch[s.clone()]);
         self.stretch_material
             .extend_from_slice(&from.stretch_material[s.clone()]);
@@ -962,7 +978,7 @@ impl InternalForces {
     /// the same order as [`InternalForces::energy_of`], so the sum has its
     /// bits.
     pub fn held_energies(&self, x: &[DVec3]) -> Vec<(u32, f64)> {
-        assert!(!self.whole, "a rank's part keeps its elements' keys");
+        self.assert_part();
         let ns = self.num_stretch as u32;
         let stretch = (self
             .stretch
@@ -1001,11 +1017,11 @@ impl InternalForces {
     /// material, its place in key order and its corners' slots, then the
     /// same per hinge, then each vertex's slots.
     pub fn partition_words(&self, p: usize, vertices: &[u32]) -> Vec<f64> {
-        assert!(!self.whole, "a rank's part keeps its elements' keys");
-        let (part, at) = (&self.partitions[p], self.held_at(p));
+        self.assert_part();
+        let (s, h) = self.held_at(p);
         let mut words = Vec::with_capacity(self.moved_words(p, vertices));
         let hinge_corners = &self.corner_slot[3 * self.stretch.len()..];
-        for l in at.stretch..at.stretch + part.stretch.len() {
+        for l in s {
             words.extend(self.stretch[l].to_words());
             words.push(self.stretch_material[l].into());
             words.push(self.stretch_key[l].into());
@@ -1015,7 +1031,7 @@ impl InternalForces {
                     .map(|&c| f64::from(c)),
             );
         }
-        for l in at.hinges..at.hinges + part.hinges.len() {
+        for l in h {
             words.extend(self.hinges[l].to_words());
             words.push(self.hinge_material[l].into());
             words.push(self.hinge_key[l].into());
@@ -1043,7 +1059,7 @@ impl InternalForces {
         holds_fold: impl Fn(usize) -> bool,
         arrived: Vec<Moved>,
     ) -> Result<(), String> {
-        assert!(!self.whole, "a rank's part keeps its elements' keys");
+        self.assert_part();
         let mut arrived_for: Vec<Option<Moved>> = vec![None; self.partitions.len()];
         for moved in arrived {
             let p = moved.partition;
@@ -1068,7 +1084,7 @@ impl InternalForces {
             let mut rest = rest.iter();
             for &i in &moved.vertices {
                 let fold: Option<Vec<u32>> = (rest.by_ref().take(self.fold_len(i as usize)))
-                    .map(|&s| whole_below(s, self.num_slots() as u32))
+                    .map(|&s| whole_below(s, self.num_slots() as u64))
                     .collect();
                 let fold = fold.ok_or_else(|| {
                     format!("vertex {i}'s fold arrived with a slot that is not one")
@@ -1119,14 +1135,14 @@ impl InternalForces {
             stretch: self.stretch.len(),
             hinges: self.hinges.len(),
         });
-        let materials = self.materials.len() as u32;
+        let materials = self.materials.len() as u64;
         // An element's own words, then its material, its key and its
         // corners' slots, each a whole number below its bound.
         let split =
             |w: &[f64], own: usize, keys: usize| -> Option<(Vec<f64>, u16, u32, Vec<u16>)> {
                 let int = whole_below;
                 let material = int(w[own], materials)? as u16;
-                let key = int(w[own + 1], keys as u32)?;
+                let key = int(w[own + 1], keys as u64)?;
                 let corners = (w[own + 2..].iter())
                     .map(|&c| int(c, 1 << 16).map(|c| c as u16))
                     .collect::<Option<_>>()?;
@@ -1166,12 +1182,6 @@ pub struct Moved {
     /// The vertices whose folds follow the elements, in the order sent.
     pub vertices: Vec<u32>,
     pub words: Vec<f64>,
-}
-
-/// The whole number below `below` that word `x` holds exactly; `None` for
-/// anything else.
-fn whole_below(x: f64, below: u32) -> Option<u32> {
-    ((0.0..f64::from(below)).contains(&x) && x.fract() == 0.0).then_some(x as u32)
 }
 
 /// All elements in global key order (see [`InternalForces::key_ordered`]).

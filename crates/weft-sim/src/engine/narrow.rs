@@ -14,8 +14,8 @@ use crate::trace;
 impl<E: Executor> Engine<E> {
     /// Over ranks: every rank gets, from the ranks that hold them, the
     /// polylines of the vertices its tasks read and does not hold itself.
-    /// `reads[r]` is what rank `r`'s tasks read (in any order, repeats
-    /// allowed): all of it for this rank, for another only the vertices
+    /// `reads[r]` is what rank `r`'s tasks read (in any order, each vertex
+    /// once): all of it for this rank, for another only the vertices
     /// this rank holds (the rest travels between other ranks: every rank
     /// listing every rank's reads was memory and work each one repeated).
     /// Every rank works out the same traffic from the same placement, so
@@ -30,7 +30,7 @@ impl<E: Executor> Engine<E> {
         for (r, list) in reads.iter_mut().enumerate() {
             debug_assert!(r == me || list.iter().all(|&v| holders[v as usize] as usize == me));
             list.sort_unstable();
-            list.dedup();
+            debug_assert!(list.windows(2).all(|p| p[0] < p[1]), "each vertex once");
             for &v in list.iter() {
                 let h = holders[v as usize] as usize;
                 if h != r && (r == me || h == me) {

@@ -54,11 +54,17 @@ pub use stretch::StretchElement;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+/// The whole number below `below` (at most 2^32) that word `x` holds
+/// exactly; `None` for anything else: how ids and counts sent between
+/// ranks as words are read back.
+pub(crate) fn whole_below(x: f64, below: u64) -> Option<u32> {
+    ((0.0..below as f64).contains(&x) && x.fract() == 0.0).then_some(x as u32)
+}
+
 /// The vertex id a word holds exactly ([`StretchElement::to_words`]);
 /// `None` for anything but a whole number in `u32`'s range.
 fn vertex_id_of_word(x: f64) -> Option<u32> {
-    let whole = (0.0..=f64::from(u32::MAX)).contains(&x) && x.fract() == 0.0;
-    whole.then_some(x as u32)
+    whole_below(x, 1 << 32)
 }
 
 /// An error in the material model: invalid parameters or a rest shape that
