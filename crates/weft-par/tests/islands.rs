@@ -120,7 +120,7 @@ fn islands_on_threads_give_the_bits_of_the_global_schedule() {
         let counts = |s: &WindowStats| {
             (
                 s.layer_events,
-                s.layer_evaluations,
+                s.penalty_work.layer_evaluations,
                 s.layer_kicks,
                 s.breakpoints,
                 s.rollbacks,
@@ -151,8 +151,8 @@ fn far_stencils_split_the_islands_with_the_bits_of_the_global_schedule() {
     let (mut far, mut promoted) = (0u64, 0u64);
     let split = |_: usize, e: &mut Engine<Threads>| e.split_far_stencils(true);
     against_the_global_schedule(split, |_, b, _| {
-        far += b.far_stencils;
-        promoted += b.far_promoted;
+        far += b.penalty_work.far_stencils;
+        promoted += b.penalty_work.far_promoted;
     });
     println!("{far} far stencils at pass starts, {promoted} promoted");
     assert!(
@@ -229,7 +229,7 @@ fn a_cloth_launched_within_a_segment_promotes_its_far_stencils() {
             let what = format!("paddle at {speed} m/s, gap {gap}, window {w}");
             assert_same_state(&global, &split, &what);
             assert_eq!(a.rollbacks, b.rollbacks, "{what}: rollbacks");
-            reruns += b.island_reruns;
+            reruns += b.penalty_work.island_reruns;
         }
     }
     assert!(reruns > 0, "no segment ran again");

@@ -27,10 +27,11 @@ pub struct ContactConfig {
     /// Keep the far stencils (two dynamic vertices, certified outside
     /// `eta_1`) out of the contact islands, promoting one into them when it
     /// may come within `eta_1` (`engine/events/far.rs`): smaller islands,
-    /// the same trajectory. Off in `Default` and in scenes
-    /// (`contact.split_islands`).
+    /// whose units spread over the ranks, and the same trajectory.
+    /// `Some(on)` always or never (`contact.split_islands`); `None`, the
+    /// default: from 4 ranks and from 8 threads per rank on (`Engine::new`).
     #[serde(default)]
-    pub split_islands: bool,
+    pub split_islands: Option<bool>,
     /// Coulomb friction coefficient (0 = off).
     pub friction: f64,
     /// Rollbacks of one window before the run stops with a diagnostic.
@@ -47,7 +48,7 @@ impl Default for ContactConfig {
             layers_per_detection: 5,
             retire_after_windows: 3,
             predict: true,
-            split_islands: false,
+            split_islands: None,
             friction: 0.0,
             max_rollbacks: 1000,
         }

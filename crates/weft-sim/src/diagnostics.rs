@@ -20,11 +20,6 @@ pub struct WindowStats {
     pub internal_stencil_evaluations: u64,
     /// Penalty-layer stencil evaluations (one per stencil per layer tick).
     pub layer_events: u64,
-    /// Exact distance evaluations at penalty batches (one serves every
-    /// firing layer of its stencil); the other layer events were skipped:
-    /// asleep, or certainly outside every firing layer by a distance bound.
-    #[serde(default)]
-    pub layer_evaluations: u64,
     /// Penalty evaluations that kicked (stencil inside its layer).
     pub layer_kicks: u64,
     /// Contact islands of the committed pass (`crate::islands`) and the
@@ -34,20 +29,6 @@ pub struct WindowStats {
     pub islands: u64,
     #[serde(default)]
     pub largest_island_layer_events: u64,
-    /// With `contact.split_islands`: far stencils kept out of the islands
-    /// when the committed pass started, those promoted into them during it,
-    /// and the island units that ran a segment again after a promotion.
-    #[serde(default)]
-    pub far_stencils: u64,
-    #[serde(default)]
-    pub far_promoted: u64,
-    #[serde(default)]
-    pub island_reruns: u64,
-    /// With `contact.split_islands`: the layer events of the largest unit
-    /// of islands at the committed pass's end (what bounds running them in
-    /// parallel, as `largest_island_layer_events` does without).
-    #[serde(default)]
-    pub largest_unit_layer_events: u64,
     /// Rollbacks of this window.
     pub rollbacks: u32,
     /// Active stencils at commit (after retirement) and their depth histogram
@@ -98,6 +79,9 @@ pub struct WindowStats {
     pub contact_energy: f64,
     pub linear_momentum: [f64; 3],
     pub angular_momentum: [f64; 3],
+    /// How the committed pass's penalty stage ran (not what it computed).
+    #[serde(skip)]
+    pub penalty_work: PenaltyWork,
     /// Wall-clock seconds spent on the window (all passes).
     #[serde(skip)]
     pub wall_seconds: f64,
@@ -107,17 +91,58 @@ pub struct WindowStats {
 }
 
 impl WindowStats {
-    /// The wall-clock part of the stats.
+    /// The part of the stats that depends on how the window ran: its
+    /// wall-clock times and its penalty work.
     pub fn timing(&self) -> WindowTiming {
         WindowTiming {
             window: self.window,
             wall_seconds: self.wall_seconds,
             stage_seconds: self.stage_seconds,
+            penalty_work: self.penalty_work,
+        }
+    }
+
+    /// These stats without what depends on how the window ran
+    /// ([`WindowStats::timing`]): what the stats file holds, equal on any
+    /// executor, rank and partition count.
+    pub fn simulated(&self) -> WindowStats {
+        WindowStats {
+            penalty_work: PenaltyWork::default(),
+            wall_seconds: 0.0,
+            stage_seconds: StageSeconds::default(),
+            ..self.clone()
         }
     }
 }
 
-/// Wall-clock time of one committed window (one line of the timing file).
+/// Counts of how a committed pass's penalty stage ran rather than of what
+/// it computed: they follow from whether the far stencils were kept out of
+/// the islands (`contact.split_islands`; unset, on from 4 ranks and from 8
+/// threads per rank), which never changes the motion. So
+/// they go to the timing file, and the stats file is the same on any
+/// executor, rank and partition count.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PenaltyWork {
+    /// The far stencils were kept out of the islands.
+    pub split: bool,
+    /// Exact distance evaluations at penalty batches (one serves every
+    /// firing layer of its stencil); the other layer events were skipped:
+    /// asleep, or certainly outside every firing layer by a distance bound.
+    pub layer_evaluations: u64,
+    /// Split: far stencils kept out of the islands when the pass started,
+    /// those promoted into them during it, and the island units that ran a
+    /// segment again after a promotion.
+    pub far_stencils: u64,
+    pub far_promoted: u64,
+    pub island_reruns: u64,
+    /// Split: the layer events of the largest unit of islands at the pass's
+    /// end (what bounds running them in parallel, as
+    /// `largest_island_layer_events` does whole).
+    pub largest_unit_layer_events: u64,
+}
+
+/// Wall-clock time of one committed window (one line of the timing file),
+/// and how its penalty stage ran.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct WindowTiming {
     pub window: u64,
@@ -125,6 +150,8 @@ pub struct WindowTiming {
     pub wall_seconds: f64,
     /// Wall-clock seconds per stage, summed over all passes.
     pub stage_seconds: StageSeconds,
+    #[serde(default)]
+    pub penalty_work: PenaltyWork,
 }
 
 /// The stages of one window pass, each with its wall-clock time.

@@ -1997,9 +1997,9 @@ fn skipped_layer_events_give_the_bits_of_full_evaluation() {
         let (mut fast, mut full) = with_and_without_skips(&s);
         for w in 0..25 {
             let (a, b) = same_window(&mut fast, &mut full, &format!("case {case}, window {w}"));
-            assert!(b.layer_evaluations <= b.layer_events);
+            assert!(b.penalty_work.layer_evaluations <= b.layer_events);
             events += a.layer_events;
-            evaluations += a.layer_evaluations;
+            evaluations += a.penalty_work.layer_evaluations;
             kicks += a.layer_kicks;
         }
     }
@@ -2121,9 +2121,15 @@ fn an_island_skipped_in_flight_keeps_the_bits_and_counts_of_the_global_schedule(
         assert_eq!(islands.world.x, global.world.x, "{what}: positions");
         assert_eq!(islands.world.v, global.world.v, "{what}: velocities");
         assert_eq!(islands.world.layers, global.world.layers, "{what}: layers");
-        let counts = |s: &WindowStats| (s.layer_events, s.layer_evaluations, s.layer_kicks);
+        let counts = |s: &WindowStats| {
+            (
+                s.layer_events,
+                s.penalty_work.layer_evaluations,
+                s.layer_kicks,
+            )
+        };
         assert_eq!(counts(&a), counts(&b), "{what}: counts");
-        evaluations += a.layer_evaluations;
+        evaluations += a.penalty_work.layer_evaluations;
         most_islands = most_islands.max(a.islands);
     }
     println!("{evaluations} evaluations, up to {most_islands} islands");

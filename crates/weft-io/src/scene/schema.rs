@@ -147,9 +147,10 @@ pub struct ContactSection {
     /// Activate layers ahead of detection from the extrapolated motion.
     #[serde(default = "default_predict")]
     pub predict: bool,
-    /// Keep far stencils out of the contact islands while certified.
+    /// Keep far stencils out of the contact islands while certified
+    /// (absent: from 4 ranks and from 8 threads per rank on).
     #[serde(default)]
-    pub split_islands: bool,
+    pub split_islands: Option<bool>,
     /// Rollback cap per window.
     #[serde(default = "default_max_rollbacks")]
     pub max_rollbacks: u32,
@@ -185,7 +186,7 @@ impl Default for ContactSection {
             friction: 0.0,
             retire_after_windows: default_retire(),
             predict: default_predict(),
-            split_islands: false,
+            split_islands: None,
             max_rollbacks: default_max_rollbacks(),
         }
     }

@@ -114,6 +114,24 @@ pub struct RunTotals {
     pub max_active_stencils: u64,
 }
 
+/// `contact.split_islands` unset, the islands are split (also on one
+/// rank) from this many threads per rank on: measured on 16 cores
+/// (`docs/performance.md`, "Sixteen cores"), the split was faster from 8
+/// threads on (the 10k twister 338 against 371 ms a window at 8, 257
+/// against 348 at 16; 50k 1.14× and 1.31×) and 2–11 % slower at 2 and 4.
+const SPLIT_FROM_THREADS: usize = 8;
+
+/// `contact.split_islands` unset, the islands are split over this many
+/// ranks and more: on 2 ranks the partitions placed by load balance a
+/// giant island whole (the split cost 9 % more CPU there for the same
+/// time), from 4 on a rank's share falls towards the island's cost, which
+/// no placement splits (10k twister under `mpirun`, the busiest rank's
+/// CPU: 4 ranks the same either way, 8 ranks 0.40 s split against 0.45
+/// whole; at 50k on 8 and 16 ranks of a 16-core machine the giant
+/// island's units on one rank took 2.2–2.4× the time of its units spread;
+/// `docs/performance.md`, "The islands split from 4 ranks by default").
+const SPLIT_FROM_RANKS: usize = 4;
+
 /// The ACM engine over a [`World`], running its stages on an [`Executor`].
 pub struct Engine<E: Executor = Serial> {
     pub world: World,
@@ -153,7 +171,7 @@ pub struct Engine<E: Executor = Serial> {
     /// Islands of fewer stencils run packed together (`Islands::packed`).
     island_pack: usize,
     /// Keep the far stencils out of the islands while they are certified
-    /// outside `eta_1` (`events/far.rs`).
+    /// outside `eta_1` (`events/far.rs`): the next pass splits the islands.
     far_stencils: bool,
 }
 
@@ -226,7 +244,13 @@ impl<E: Executor> Engine<E> {
             island_pack: events::PACK_STENCILS,
             far_stencils: false,
         };
-        engine.far_stencils = engine.world.contact.split_islands;
+        // Unset, the islands are split from `SPLIT_FROM_RANKS` ranks on
+        // (their units spread: a giant island whole on one rank leaves the
+        // others waiting for it) and from `SPLIT_FROM_THREADS` threads per
+        // rank on (whole, it keeps one thread busy while the others wait).
+        let (ranks, threads) = (engine.exec.ranks(), engine.exec.threads_per_rank());
+        engine.far_stencils = (engine.world.contact.split_islands)
+            .unwrap_or(ranks >= SPLIT_FROM_RANKS || threads >= SPLIT_FROM_THREADS);
         if engine.world.contact.predict {
             engine.make_predictor();
         }
@@ -272,8 +296,9 @@ impl<E: Executor> Engine<E> {
     }
 
     /// Keeps the far stencils (two dynamic vertices, certified outside
-    /// `eta_1`) out of the contact islands when `on` (default: the scene's
-    /// `contact.split_islands`, off), so that
+    /// `eta_1`) out of the contact islands when `on`, from the next window
+    /// on (default: the scene's `contact.split_islands`; unset, on from 4
+    /// ranks and from 8 threads per rank), so that
     /// the islands are those of the stencils in or near contact, and
     /// promotes one into them when it may come within `eta_1`, running the
     /// segment again where it was already run. The same bits either way

@@ -20,7 +20,7 @@ use weft_geom::distance::stencil_closest;
 
 use super::events::PassCounts;
 use super::Engine;
-use crate::diagnostics::{StageSeconds, WindowStats};
+use crate::diagnostics::{PenaltyWork, StageSeconds, WindowStats};
 use crate::executor::{CommError, Executor};
 use crate::layers::LayerState;
 use crate::world::World;
@@ -262,14 +262,17 @@ impl<E: Executor> Engine<E> {
             internal_events: counts.internal_events,
             internal_stencil_evaluations: counts.internal_events * w.internal.num_stencils() as u64,
             layer_events: counts.layer_events,
-            layer_evaluations: counts.layer_evaluations,
             layer_kicks: counts.layer_kicks,
             islands: counts.islands,
             largest_island_layer_events: counts.largest_island_layer_events,
-            far_stencils: counts.far.far,
-            far_promoted: counts.far.promoted,
-            island_reruns: counts.far.reruns,
-            largest_unit_layer_events: counts.far.largest,
+            penalty_work: PenaltyWork {
+                split: counts.split,
+                layer_evaluations: counts.layer_evaluations,
+                far_stencils: counts.far.far,
+                far_promoted: counts.far.promoted,
+                island_reruns: counts.far.reruns,
+                largest_unit_layer_events: counts.far.largest,
+            },
             rollbacks,
             active_stencils: w.layers.stencils.len() as u64,
             max_depth: hist.len() as u32,

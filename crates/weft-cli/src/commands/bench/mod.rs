@@ -137,6 +137,9 @@ struct Sample {
     /// Vertices that moved to another rank with their unit in a merge
     /// (`contact.split_islands` over ranks; the same count on every rank).
     moved_between_ranks: u64,
+    /// Windows whose islands were split (`contact.split_islands`; unset,
+    /// from 4 ranks and from 8 threads per rank on).
+    split_windows: u64,
     rollbacks: u64,
     /// Layers activated by prediction and by detection, and the predicted
     /// ones never reached, summed over windows.
@@ -274,6 +277,9 @@ pub struct ThreadResult {
     /// Over ranks with the units spread (`contact.split_islands`): the
     /// vertices per window that moved to another rank with their unit.
     pub moved_between_ranks_per_window: f64,
+    /// The share of the windows whose islands were split (the median
+    /// run's).
+    pub split_window_share: f64,
 }
 
 /// What `weft bench` reports.
@@ -1005,13 +1011,14 @@ fn measure<E: Executor>(
         s.internal_ticks_all_passes += w.internal_events * (u64::from(w.rollbacks) + 1);
         s.internal_evaluations += w.internal_stencil_evaluations;
         s.layer_events += w.layer_events;
-        s.layer_evaluations += w.layer_evaluations;
+        s.layer_evaluations += w.penalty_work.layer_evaluations;
         s.islands += w.islands;
         s.largest_island_layer_events += w.largest_island_layer_events;
-        s.far[0] += w.far_stencils;
-        s.far[1] += w.far_promoted;
-        s.far[2] += w.island_reruns;
-        s.far[3] += w.largest_unit_layer_events;
+        s.far[0] += w.penalty_work.far_stencils;
+        s.far[1] += w.penalty_work.far_promoted;
+        s.far[2] += w.penalty_work.island_reruns;
+        s.far[3] += w.penalty_work.largest_unit_layer_events;
+        s.split_windows += u64::from(w.penalty_work.split);
         s.rollbacks += u64::from(w.rollbacks);
         s.active_stencils = w.active_stencils;
         s.max_depth = w.max_depth;
@@ -1181,6 +1188,7 @@ fn summarize(r: &mut BenchReport, all: &[((usize, usize), Vec<Sample>)]) {
             narrow_imbalance: imbalance(&|l| &l.balanced),
             narrow_imbalance_home_only: imbalance(&|l| &l.home_only),
             moved_between_ranks_per_window: med(&|s| s.moved_between_ranks as f64 / windows),
+            split_window_share: med(&|s| s.split_windows as f64 / windows),
         });
     }
     if let Some(t1) = r
@@ -1384,6 +1392,12 @@ fn table(r: &BenchReport) -> String {
             t.threads,
             ratio(t.narrow_imbalance),
             ratio(t.narrow_imbalance_home_only)
+        );
+        let _ = writeln!(
+            s,
+            "  islands split (far stencils kept out, units spread over the ranks) in {:.0} % of \
+             the windows",
+            100.0 * t.split_window_share
         );
         if t.moved_between_ranks_per_window > 0.0 {
             let _ = writeln!(

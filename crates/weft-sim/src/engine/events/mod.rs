@@ -82,6 +82,8 @@ pub(super) struct PassCounts {
     pub(super) internal_seconds: f64,
     /// Over ranks: this rank's work CPU seconds in its islands' segments.
     pub(super) island_cpu: f64,
+    /// The far stencils were kept out of the islands.
+    pub(super) split: bool,
     /// The pass ended early because a value became non-finite.
     pub(super) truncated: Option<SimError>,
     /// The pass stopped early because the engine was interrupted.
@@ -722,6 +724,7 @@ impl<E: Executor> Engine<E> {
         let packs = islands.packed(self.island_pack);
         let me = self.exec.rank() as u32;
         let split = self.far_stencils && !self.one_island && !self.every_layer_event;
+        counts.split = split;
         let spread = split && self.share.is_some();
         let pack_rank = match &self.share {
             Some(share) if !spread => {
