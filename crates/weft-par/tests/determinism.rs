@@ -119,6 +119,21 @@ fn run_hooked<E: Executor>(
     }
 }
 
+/// Every window of `o` split its islands exactly when `split`, and the
+/// statistics `stats.jsonl` holds are `reference`'s all the same.
+fn same_stats_split_as_asked(o: &Outcome, reference: &Outcome, split: bool, label: &str) {
+    for (a, b) in o.stats.iter().zip(&reference.stats) {
+        let window = b.window;
+        assert_eq!(a.penalty_work.split, split, "{label}: split in {window}");
+        assert_eq!(
+            a.simulated(),
+            b.simulated(),
+            "{label}: statistics of {window}"
+        );
+    }
+    assert_eq!(o.stats.len(), reference.stats.len(), "{label}: windows");
+}
+
 /// Every executor at `partitions` partitions ends in the fixture's hash.
 fn all_executors_agree(partitions: usize) {
     let reference = run(Serial, partitions);
@@ -151,20 +166,12 @@ fn all_executors_agree(partitions: usize) {
         );
     }
     // `contact.split_islands` unset: no split on one memory below 8
-    // threads, every window split from 8 on.
+    // threads, every window split from 8 on; the same stats either way.
     assert!(reference.stats.iter().all(|s| !s.penalty_work.split));
     for threads in [1, 2, 3, 4, 8] {
         let o = run(Threads::new(threads).unwrap(), partitions);
         assert_eq!(o.hash, FIXTURE_HASH, "threads = {threads}, {label}");
-        let split = o.stats.iter().map(|s| s.penalty_work.split);
-        assert!(
-            split.clone().all(|s| s == (threads >= 8)),
-            "{threads} threads"
-        );
-        for (a, b) in o.stats.iter().zip(&reference.stats) {
-            let window = b.window;
-            assert_eq!(a.simulated(), b.simulated(), "{threads} threads: {window}");
-        }
+        same_stats_split_as_asked(&o, &reference, threads >= 8, &format!("{threads} threads"));
     }
     // Ranks with one thread each, and two ranks of two threads.
     let rows = [(1, 1), (2, 1), (3, 1), (4, 1), (2, 2)];
@@ -179,22 +186,9 @@ fn all_executors_agree(partitions: usize) {
             assert_eq!(o.rollbacks, reference.rollbacks, "rank {rank} of {ranks}");
             // Each rank computed its share and received the others'.
             assert_eq!(o.messages > 0, ranks > 1, "rank {rank} of {ranks}");
-            // `contact.split_islands` unset, the islands are split from 4
-            // ranks on; what the stats file holds is one memory's all the
-            // same.
-            let split = o.stats.iter().map(|s| s.penalty_work.split);
-            assert!(
-                split.clone().all(|s| s == (ranks >= 4)),
-                "rank {rank} of {ranks}"
-            );
-            for (a, b) in o.stats.iter().zip(&reference.stats) {
-                let window = b.window;
-                assert_eq!(
-                    a.simulated(),
-                    b.simulated(),
-                    "rank {rank} of {ranks}: {window}"
-                );
-            }
+            // (`contact.split_islands` unset: split from 4 ranks on)
+            let label = format!("rank {rank} of {ranks}");
+            same_stats_split_as_asked(o, &reference, ranks >= 4, &label);
         }
     }
 }
