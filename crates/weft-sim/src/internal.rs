@@ -973,10 +973,11 @@ impl InternalForces {
 
     /// The elastic energy of each held element of a rank's part with its
     /// place in key order ([`InternalForces::elements_by_key`]: the
-    /// stretch elements, then the hinges), ascending by that place. The
-    /// statistics gather them where a range of that order is summed, in
-    /// the same order as [`InternalForces::energy_of`], so the sum has its
-    /// bits.
+    /// stretch elements, then the hinges), in the order they are held. The
+    /// statistics gather them where a range of that order is summed and
+    /// sort them there, to add them in the order of
+    /// [`InternalForces::energy_of`], so the sum has its bits (sorted here
+    /// too, they were sorted twice).
     pub fn held_energies(&self, x: &[DVec3]) -> Vec<(u32, f64)> {
         self.assert_part();
         let ns = self.num_stretch as u32;
@@ -998,9 +999,7 @@ impl InternalForces {
             let k = self.materials[m as usize].bending_stiffness;
             (ns + n, e.energy(&e.verts.map(|i| x[i as usize]), k))
         });
-        let mut energies: Vec<(u32, f64)> = stretch.chain(hinges).collect();
-        energies.sort_unstable_by_key(|e| e.0);
-        energies
+        stretch.chain(hinges).collect()
     }
 
     /// How many words partition `p`'s elements and the folds of
