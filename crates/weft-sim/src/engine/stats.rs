@@ -195,7 +195,8 @@ impl<E: Executor> Engine<E> {
             parts[owner[t] as usize].push(DVec3::new(f64::from(n), e, 0.0));
         }
         let (_, received) = self.exec.all_to_all_vectors(Vec::new(), parts)?;
-        // (in key order: each rank sent its elements as it holds them)
+        // (sorted into key order here: each rank sent its elements in the
+        // order it holds them)
         let mut energies: Vec<(u32, f64)> = (received.into_iter().flatten())
             .map(|v| (v.x as u32, v.y))
             .collect();
