@@ -975,9 +975,8 @@ impl InternalForces {
     /// place in key order ([`InternalForces::elements_by_key`]: the
     /// stretch elements, then the hinges), in the order they are held. The
     /// statistics gather them where a range of that order is summed and
-    /// sort them there, to add them in the order of
-    /// [`InternalForces::energy_of`], so the sum has its bits (sorted here
-    /// too, they were sorted twice).
+    /// sort them there (only there), to add them in the order of
+    /// [`InternalForces::energy_of`], so the sum has its bits.
     pub fn held_energies(&self, x: &[DVec3]) -> Vec<(u32, f64)> {
         self.assert_part();
         let ns = self.num_stretch as u32;
