@@ -371,7 +371,7 @@ fn crumple_keeps_every_stencil_outside_its_next_layer() {
     }
     let (mut rollbacks, mut depth, mut closest) = (0, 0, f64::INFINITY);
     while e.world.time() < s.end_time {
-        let st = e.step_window().unwrap();
+        let st = e.step_window().unwrap().stats;
         rollbacks += st.rollbacks;
         depth = depth.max(st.max_depth);
         let w = &e.world;

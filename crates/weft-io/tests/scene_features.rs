@@ -661,7 +661,7 @@ mesh_sequence = { pattern = "rise/*.obj", frame_rate = 10.0 }
         |w: &World| cloth.clone().map(|i| w.x[i as usize].y).sum::<f64>() / cloth.len() as f64;
     let (mut rollbacks, mut lowest_gap) = (0, f64::INFINITY);
     while e.world.time() < 0.6 {
-        let st = e.step_window().unwrap();
+        let st = e.step_window().unwrap().stats;
         rollbacks += st.rollbacks;
         let w = &e.world;
         let t = w.time();

@@ -13,8 +13,8 @@ use weft_par::Threads;
 use weft_sim::kinematics::Motion;
 use weft_sim::materials::Material;
 use weft_sim::{
-    ContactConfig, Engine, Executor, LimitsConfig, ObjectKind, ObjectSpec, Serial, TimeConfig,
-    WindowStats, World, WorldSpec,
+    CommittedWindow, ContactConfig, Engine, Executor, LimitsConfig, ObjectKind, ObjectSpec, Serial,
+    TimeConfig, World, WorldSpec,
 };
 use weft_testkit::Rng;
 
@@ -90,10 +90,10 @@ fn assert_same_state<A: Executor, B: Executor>(a: &Engine<A>, b: &Engine<B>, wha
 
 /// The four random scenes, 30 windows each, under the global schedule and
 /// on 2 threads with `configure(case, engine)` applied: the same state at
-/// every window end; `each(global's stats, the other's, what)` per window.
+/// every window end; `each(global's window, the other's, what)` per window.
 fn against_the_global_schedule(
     configure: impl Fn(usize, &mut Engine<Threads>),
-    mut each: impl FnMut(&WindowStats, &WindowStats, &str),
+    mut each: impl FnMut(&CommittedWindow, &CommittedWindow, &str),
 ) {
     let mut rng = Rng(0x1514);
     for case in 0..4 {
@@ -117,16 +117,17 @@ fn islands_on_threads_give_the_bits_of_the_global_schedule() {
     // Every island alone, or the small ones packed in threes.
     let pack = |case: usize, e: &mut Engine<Threads>| e.set_island_packing([1, 3][case % 2]);
     against_the_global_schedule(pack, |a, b, what| {
-        let counts = |s: &WindowStats| {
+        let counts = |w: &CommittedWindow| {
             (
-                s.layer_events,
-                s.penalty_work.layer_evaluations,
-                s.layer_kicks,
-                s.breakpoints,
-                s.rollbacks,
+                w.stats.layer_events,
+                w.timing.penalty_work.layer_evaluations,
+                w.stats.layer_kicks,
+                w.stats.breakpoints,
+                w.stats.rollbacks,
             )
         };
         assert_eq!(counts(a), counts(b), "{what}: counts");
+        let (a, b) = (&a.stats, &b.stats);
         assert_eq!(a.min_separation, b.min_separation, "{what}");
         assert!(a.islands <= 1, "{what}: one island");
         most_islands = most_islands.max(b.islands);
@@ -151,8 +152,8 @@ fn far_stencils_split_the_islands_with_the_bits_of_the_global_schedule() {
     let (mut far, mut promoted) = (0u64, 0u64);
     let split = |_: usize, e: &mut Engine<Threads>| e.split_far_stencils(true);
     against_the_global_schedule(split, |_, b, _| {
-        far += b.penalty_work.far_stencils;
-        promoted += b.penalty_work.far_promoted;
+        far += b.timing.penalty_work.far_stencils;
+        promoted += b.timing.penalty_work.far_promoted;
     });
     println!("{far} far stencils at pass starts, {promoted} promoted");
     assert!(
@@ -228,8 +229,8 @@ fn a_cloth_launched_within_a_segment_promotes_its_far_stencils() {
             let b = split.step_window().unwrap();
             let what = format!("paddle at {speed} m/s, gap {gap}, window {w}");
             assert_same_state(&global, &split, &what);
-            assert_eq!(a.rollbacks, b.rollbacks, "{what}: rollbacks");
-            reruns += b.penalty_work.island_reruns;
+            assert_eq!(a.stats.rollbacks, b.stats.rollbacks, "{what}: rollbacks");
+            reruns += b.timing.penalty_work.island_reruns;
         }
     }
     assert!(reruns > 0, "no segment ran again");

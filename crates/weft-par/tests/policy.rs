@@ -90,7 +90,7 @@ fn run(scene: &str, overrides: &[&str], policy: Policy) -> Run {
     let mut windows = Vec::new();
     let mut predicted_layers = 0;
     while e.world.tick < end {
-        let stats = e.step_window().unwrap();
+        let stats = e.step_window().unwrap().stats;
         predicted_layers += stats.predicted_layers;
         let w = &e.world;
         let bits = (w.x.iter().chain(&w.v))
@@ -223,7 +223,7 @@ fn prediction_is_the_same_on_threads_and_ranks() {
         let end = e.world.lattice.window_end_at_or_after(scene.end_time);
         let mut predicted = 0;
         while e.world.tick < end {
-            predicted += e.step_window().unwrap().predicted_layers;
+            predicted += e.step_window().unwrap().stats.predicted_layers;
         }
         (e.state_hash(), predicted)
     }

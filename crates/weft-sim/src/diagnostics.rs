@@ -4,8 +4,9 @@ use serde::{Deserialize, Serialize};
 
 /// What happened in one committed window (one line of the stats file).
 ///
-/// The serialized form holds only what the simulation determines, so a resumed
-/// run writes the same bytes; the wall-clock fields go to [`WindowTiming`].
+/// Only what the simulation determines, so a resumed run, or one on another
+/// executor, writes the same bytes; how the window ran (wall-clock and CPU
+/// times, the penalty stage's work) is its [`WindowTiming`].
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct WindowStats {
     /// Index of the window (0-based).
@@ -79,40 +80,16 @@ pub struct WindowStats {
     pub contact_energy: f64,
     pub linear_momentum: [f64; 3],
     pub angular_momentum: [f64; 3],
-    /// How the committed pass's penalty stage ran (not what it computed).
-    #[serde(skip)]
-    pub penalty_work: PenaltyWork,
-    /// Wall-clock seconds spent on the window (all passes).
-    #[serde(skip)]
-    pub wall_seconds: f64,
-    /// Wall-clock seconds per stage, summed over all passes.
-    #[serde(skip)]
-    pub stage_seconds: StageSeconds,
 }
 
-impl WindowStats {
-    /// The part of the stats that depends on how the window ran: its
-    /// wall-clock times and its penalty work.
-    pub fn timing(&self) -> WindowTiming {
-        WindowTiming {
-            window: self.window,
-            wall_seconds: self.wall_seconds,
-            stage_seconds: self.stage_seconds,
-            penalty_work: self.penalty_work,
-        }
-    }
-
-    /// These stats without what depends on how the window ran
-    /// ([`WindowStats::timing`]): what the stats file holds, equal on any
-    /// executor, rank and partition count.
-    pub fn simulated(&self) -> WindowStats {
-        WindowStats {
-            penalty_work: PenaltyWork::default(),
-            wall_seconds: 0.0,
-            stage_seconds: StageSeconds::default(),
-            ..self.clone()
-        }
-    }
+/// A committed window as [`crate::Engine::step_window`] returns it: what the
+/// simulation computed (a line of the stats file, the same bytes on any
+/// executor, rank and partition count) and how this run computed it (a line
+/// of the timing file).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CommittedWindow {
+    pub stats: WindowStats,
+    pub timing: WindowTiming,
 }
 
 /// Counts of how a committed pass's penalty stage ran rather than of what

@@ -62,7 +62,7 @@ pub(crate) fn uniform_numbers(mut seed: u64) -> impl FnMut() -> f64 {
 }
 
 pub use config::{ContactConfig, LimitsConfig, TimeConfig};
-pub use diagnostics::{PenaltyWork, WindowStats, WindowTiming};
+pub use diagnostics::{CommittedWindow, PenaltyWork, WindowStats, WindowTiming};
 pub use engine::{Engine, NarrowLoad, RunTotals};
 pub use error::SimError;
 pub use executor::{CommError, Executor, Message, Serial, Traffic};

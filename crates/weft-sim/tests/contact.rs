@@ -24,8 +24,8 @@ use weft_sim::layers::{penalty_kick, LayerSchedule};
 use weft_sim::materials::{damping_step_limit, Material, MaterialError};
 use weft_sim::trajectory::Trajectories;
 use weft_sim::{
-    ContactConfig, Engine, LimitsConfig, ObjectKind, ObjectSpec, PinSpec, Serial, SimError,
-    TimeConfig, WindowStats, World, WorldSpec,
+    CommittedWindow, ContactConfig, Engine, LimitsConfig, ObjectKind, ObjectSpec, PinSpec, Serial,
+    SimError, TimeConfig, World, WorldSpec,
 };
 use weft_testkit::{assert_gradient, Rng};
 
@@ -329,7 +329,7 @@ struct RunSummary {
 fn run_checked(
     engine: &mut Engine<Serial>,
     windows: usize,
-    mut each: impl FnMut(&Engine<Serial>, &WindowStats),
+    mut each: impl FnMut(&Engine<Serial>, &CommittedWindow),
 ) -> RunSummary {
     // The initial state only has to be above the floor (not outside
     // eta_(depth+1)); the summary covers committed window ends only.
@@ -341,7 +341,8 @@ fn run_checked(
         ..Default::default()
     };
     for _ in 0..windows {
-        let stats = engine.step_window().expect("window commits");
+        let window = engine.step_window().expect("window commits");
+        let stats = &window.stats;
         // The statistics are the engine's energies at the window end
         // (potential = elastic + gravity + contact), bit for bit.
         let (kinetic, elastic_gravity, contact) = engine.energies();
@@ -375,7 +376,7 @@ fn run_checked(
         sum.min_end_distance = sum.min_end_distance.min(c.min_distance);
         sum.min_margin = sum.min_margin.min(c.min_margin);
         sum.closest_underestimates = sum.closest_underestimates.max(c.closest_underestimates);
-        each(engine, &stats);
+        each(engine, &window);
     }
     sum
 }
@@ -701,7 +702,12 @@ fn sheet_dropped_at_12_m_s_on_a_pinned_sheet_does_not_cross() {
     let sum = run_checked(&mut e, 12, |e, st| {
         println!(
             "  window {} rollbacks {} depth {} wall {:.2}s kicks {} cand {}",
-            st.window, st.rollbacks, st.max_depth, st.wall_seconds, st.layer_kicks, st.candidates
+            st.stats.window,
+            st.stats.rollbacks,
+            st.stats.max_depth,
+            st.timing.wall_seconds,
+            st.stats.layer_kicks,
+            st.stats.candidates
         );
         for i in up.clone() {
             let p = e.world.x[i];
@@ -763,7 +769,7 @@ fn cloth_resting_on_a_sphere_stays_outside_for_40_windows() {
         .collect();
     let mut depth_seen = 0;
     let sum = run_checked(&mut e, 40, |e, st| {
-        depth_seen = depth_seen.max(st.max_depth);
+        depth_seen = depth_seen.max(st.stats.max_depth);
         for i in sheet_v.clone() {
             let p = e.world.x[i];
             let out = faces
@@ -906,7 +912,7 @@ fn stacked_parallel_sheets_never_report_a_separation_below_the_floor() {
         cloth("upper", upper, DVec3::ZERO),
     );
     let mut e = engine(&s);
-    let sum = run_checked(&mut e, 3, |_, st| {
+    let sum = run_checked(&mut e, 3, |_, CommittedWindow { stats: st, .. }| {
         println!(
             "  window {}: rollbacks {} depth {} min separation {:?}",
             st.window, st.rollbacks, st.max_depth, st.min_separation
@@ -1362,7 +1368,9 @@ fn rollback_cap_names_the_stencil_and_keeps_the_window_start() {
         );
         let layers = e.world.layers.clone();
         match e.step_window() {
-            Ok(st) => assert!(st.rollbacks <= 1, "window {w}: {} rollbacks", st.rollbacks),
+            Ok(CommittedWindow { stats: st, .. }) => {
+                assert!(st.rollbacks <= 1, "window {w}: {} rollbacks", st.rollbacks)
+            }
             Err(err) => {
                 let msg = err.to_string();
                 println!("window {w}: {msg}");
@@ -1460,7 +1468,7 @@ fn a_budget_error_leaves_no_stale_impulse_behind() {
     let mut kicked = 0;
     let mut states = Vec::new();
     for _ in 0..windows {
-        let st = reference.step_window().unwrap();
+        let st = reference.step_window().unwrap().stats;
         kicked += st.layer_kicks;
         println!(
             "window {}: depth {:?}, {} breakpoints, {} rollbacks, {} layer events",
@@ -1958,14 +1966,14 @@ fn same_window(
     fast: &mut Engine<Serial>,
     full: &mut Engine<Serial>,
     what: &str,
-) -> (WindowStats, WindowStats) {
+) -> (CommittedWindow, CommittedWindow) {
     let a = fast.step_window().unwrap();
     let b = full.step_window().unwrap();
     assert_eq!(fast.world.x, full.world.x, "{what}: positions");
     assert_eq!(fast.world.v, full.world.v, "{what}: velocities");
     assert_eq!(fast.world.tau, full.world.tau, "{what}: clocks");
     assert_eq!(fast.world.layers, full.world.layers, "{what}: layers");
-    let counts = |s: &WindowStats| (s.layer_events, s.layer_kicks);
+    let counts = |w: &CommittedWindow| (w.stats.layer_events, w.stats.layer_kicks);
     assert_eq!(counts(&a), counts(&b), "{what}: layer events and kicks");
     (a, b)
 }
@@ -1997,10 +2005,10 @@ fn skipped_layer_events_give_the_bits_of_full_evaluation() {
         let (mut fast, mut full) = with_and_without_skips(&s);
         for w in 0..25 {
             let (a, b) = same_window(&mut fast, &mut full, &format!("case {case}, window {w}"));
-            assert!(b.penalty_work.layer_evaluations <= b.layer_events);
-            events += a.layer_events;
-            evaluations += a.penalty_work.layer_evaluations;
-            kicks += a.layer_kicks;
+            assert!(b.timing.penalty_work.layer_evaluations <= b.stats.layer_events);
+            events += a.stats.layer_events;
+            evaluations += a.timing.penalty_work.layer_evaluations;
+            kicks += a.stats.layer_kicks;
         }
     }
     println!("{events} layer events, {evaluations} evaluated exactly, {kicks} kicks");
@@ -2061,7 +2069,7 @@ fn a_kinematic_obstacle_that_speeds_up_wakes_the_stencils_asleep_against_it() {
         for w in 0..16 {
             let what = format!("slow {slow} m/s, faster after {fast_at} windows, window {w}");
             let (a, _) = same_window(&mut fast, &mut full, &what);
-            kicks += a.layer_kicks;
+            kicks += a.stats.layer_kicks;
         }
     }
     assert!(kicks > 100, "too little contact: {kicks} kicks");
@@ -2121,16 +2129,16 @@ fn an_island_skipped_in_flight_keeps_the_bits_and_counts_of_the_global_schedule(
         assert_eq!(islands.world.x, global.world.x, "{what}: positions");
         assert_eq!(islands.world.v, global.world.v, "{what}: velocities");
         assert_eq!(islands.world.layers, global.world.layers, "{what}: layers");
-        let counts = |s: &WindowStats| {
+        let counts = |w: &CommittedWindow| {
             (
-                s.layer_events,
-                s.penalty_work.layer_evaluations,
-                s.layer_kicks,
+                w.stats.layer_events,
+                w.timing.penalty_work.layer_evaluations,
+                w.stats.layer_kicks,
             )
         };
         assert_eq!(counts(&a), counts(&b), "{what}: counts");
-        evaluations += a.penalty_work.layer_evaluations;
-        most_islands = most_islands.max(a.islands);
+        evaluations += a.timing.penalty_work.layer_evaluations;
+        most_islands = most_islands.max(a.stats.islands);
     }
     println!("{evaluations} evaluations, up to {most_islands} islands");
     assert!(most_islands >= 2, "the sheets must make two islands");

@@ -71,7 +71,7 @@ fn event_loop_without_contact_is_leapfrog_bitwise() {
     let (mut x, mut v) = (w0.x.clone(), w0.v.clone());
     let windows = 3;
     for _ in 0..windows {
-        let stats = engine.step_window().unwrap();
+        let stats = engine.step_window().unwrap().stats;
         assert_eq!(stats.rollbacks, 0, "this test must not see contact");
         assert_eq!(stats.layer_events, 0);
     }
@@ -163,7 +163,7 @@ fn folding_onto_itself_conserves_momentum_and_energy() {
     // contact need not cost a rollback, so rollbacks do not count contacts).
     let mut kicking_windows = 0;
     for _ in 0..120 {
-        let s = engine.step_window().unwrap();
+        let s = engine.step_window().unwrap().stats;
         rollbacks += s.rollbacks;
         max_depth = max_depth.max(s.max_depth);
         contact_started |= s.layer_kicks > 0;
@@ -239,7 +239,7 @@ fn folding_with_friction_conserves_linear_momentum() {
         let scale_p: f64 = (0..w.x.len()).map(|i| w.mass[i] * w.v[i].length()).sum();
         let (mut rollbacks, mut kicks) = (0, 0);
         for _ in 0..60 {
-            let s = engine.step_window().unwrap();
+            let s = engine.step_window().unwrap().stats;
             rollbacks += s.rollbacks;
             kicks += s.layer_kicks;
             let (p, _) = engine.momenta();

@@ -96,7 +96,7 @@ fn zero_velocities(engine: &mut Engine) {
 fn relax(engine: &mut Engine, windows: usize) {
     let mut ke_prev = 0.0;
     for _ in 0..windows {
-        let s = engine.step_window().expect("window");
+        let s = engine.step_window().expect("window").stats;
         if s.kinetic_energy < ke_prev {
             zero_velocities(engine);
             ke_prev = 0.0;
@@ -557,7 +557,7 @@ fn slide_on(
     let (s0, _) = com(&engine);
     let (mut ts, mut ss, mut vs) = (vec![0.0], vec![0.0], vec![0.0]);
     for _ in 0..(span / window).ceil() as usize {
-        let stats = engine.step_window().expect("window");
+        let stats = engine.step_window().expect("window").stats;
         min_separation = min_separation.min(stats.min_separation.unwrap_or(f64::INFINITY));
         let (s, v) = com(&engine);
         ts.push(engine.world.time() - t0);

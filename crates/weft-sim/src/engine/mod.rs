@@ -40,7 +40,7 @@ use weft_geom::distance::stencil_closest;
 use crate::balance::CostModel;
 use crate::broad::BroadPhase;
 use crate::clock::Tick;
-use crate::diagnostics::{StageSeconds, WindowStats};
+use crate::diagnostics::{CommittedWindow, PenaltyWork, StageSeconds, WindowTiming};
 use crate::error::SimError;
 use crate::executor::{Executor, Serial};
 use crate::layers::LayerState;
@@ -453,7 +453,7 @@ impl<E: Executor> Engine<E> {
     /// last committed state — positions, velocities, clocks and the active
     /// layers, without the layers this window's rollbacks added — so a
     /// checkpoint taken then resumes bit-identically.
-    pub fn step_window(&mut self) -> Result<WindowStats, SimError> {
+    pub fn step_window(&mut self) -> Result<CommittedWindow, SimError> {
         // The committed layers, to put back if the window fails: as a
         // sorted list (28 bytes a stencil), not a clone of the map with its
         // nodes' spare room, since it is held through the window's memory
@@ -468,7 +468,7 @@ impl<E: Executor> Engine<E> {
         result
     }
 
-    fn run_window(&mut self) -> Result<WindowStats, SimError> {
+    fn run_window(&mut self) -> Result<CommittedWindow, SimError> {
         let _span = trace::span_with("window", "window", self.world.window_index);
         let started = Instant::now();
         let t0 = self.world.tick;
@@ -591,6 +591,14 @@ impl<E: Executor> Engine<E> {
                     }
                 };
                 self.world.tick = t1;
+                let penalty_work = PenaltyWork {
+                    split: counts.split,
+                    layer_evaluations: counts.layer_evaluations,
+                    far_stencils: counts.far.far,
+                    far_promoted: counts.far.promoted,
+                    island_reruns: counts.far.reruns,
+                    largest_unit_layer_events: counts.far.largest,
+                };
                 let mut stats = self.window_stats(
                     counts,
                     sums,
@@ -599,7 +607,6 @@ impl<E: Executor> Engine<E> {
                     confirmed,
                     retired,
                     &candidates,
-                    started,
                 );
                 let stage = (
                     &mut stages.commit,
@@ -613,7 +620,12 @@ impl<E: Executor> Engine<E> {
                         rest: (stages.cpu.events - island_cpu).max(0.0),
                     });
                 }
-                stats.stage_seconds = stages;
+                let timing = WindowTiming {
+                    window: stats.window,
+                    wall_seconds: started.elapsed().as_secs_f64(),
+                    stage_seconds: stages,
+                    penalty_work,
+                };
                 stats.predicted_layers = predicted.layers;
                 stats.predicted_unreached = unreached;
                 stats.detected_layers = detected_layers;
@@ -627,7 +639,7 @@ impl<E: Executor> Engine<E> {
                 self.totals.max_depth = self.totals.max_depth.max(stats.max_depth);
                 self.totals.max_active_stencils =
                     self.totals.max_active_stencils.max(stats.active_stencils);
-                return Ok(stats);
+                return Ok(CommittedWindow { stats, timing });
             }
             confirmed += reported.len() as u64;
             // Roll back: restore the state, keep (and extend) the layers.

@@ -11,8 +11,6 @@
 //! internal elements of its own partitions only: each element's energy is
 //! computed there and sent to the rank that sums its task.
 
-use std::time::Instant;
-
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use weft_core::StencilKey;
@@ -20,7 +18,7 @@ use weft_geom::distance::stencil_closest;
 
 use super::events::PassCounts;
 use super::Engine;
-use crate::diagnostics::{PenaltyWork, StageSeconds, WindowStats};
+use crate::diagnostics::WindowStats;
 use crate::executor::{CommError, Executor};
 use crate::layers::LayerState;
 use crate::world::World;
@@ -252,7 +250,6 @@ impl<E: Executor> Engine<E> {
         confirmed: u64,
         retired: u64,
         candidate_keys: &[StencilKey],
-        started: Instant,
     ) -> WindowStats {
         let w = &self.world;
         let min_sep = counts.min_separation.min(sums.min_separation);
@@ -267,14 +264,6 @@ impl<E: Executor> Engine<E> {
             layer_kicks: counts.layer_kicks,
             islands: counts.islands,
             largest_island_layer_events: counts.largest_island_layer_events,
-            penalty_work: PenaltyWork {
-                split: counts.split,
-                layer_evaluations: counts.layer_evaluations,
-                far_stencils: counts.far.far,
-                far_promoted: counts.far.promoted,
-                island_reruns: counts.far.reruns,
-                largest_unit_layer_events: counts.far.largest,
-            },
             rollbacks,
             active_stencils: w.layers.stencils.len() as u64,
             max_depth: hist.len() as u32,
@@ -298,8 +287,6 @@ impl<E: Executor> Engine<E> {
             contact_energy: sums.penalty,
             linear_momentum: sums.linear,
             angular_momentum: sums.angular,
-            wall_seconds: started.elapsed().as_secs_f64(),
-            stage_seconds: StageSeconds::default(),
         }
     }
 }

@@ -32,7 +32,7 @@ use weft_io::checkpoint::read_checkpoint;
 use weft_io::scene::load_scene;
 use weft_par::Threads;
 use weft_sim::diagnostics::{PerStage, StageCpu, StageSent};
-use weft_sim::{Engine, EngineState, Executor, NarrowLoad, Serial, World};
+use weft_sim::{CommittedWindow, Engine, EngineState, Executor, NarrowLoad, Serial, World};
 
 use super::run::{execute, scene_hash, signals::StopRequest, RunJob, CHECKPOINT_FILE};
 use machine::Topology;
@@ -988,14 +988,14 @@ fn measure<E: Executor>(
     let mut s = Sample::default();
     let clock = Instant::now();
     for _ in 0..windows {
-        let w = engine.step_window()?;
-        s.own.events += w.stage_seconds.events;
-        s.own.broad += w.stage_seconds.broad;
-        s.own.narrow += w.stage_seconds.narrow;
-        s.own.commit += w.stage_seconds.commit;
-        s.own.predict += w.stage_seconds.predict;
-        s.own.cpu += w.stage_seconds.cpu;
-        s.own.sent += w.stage_seconds.sent;
+        let CommittedWindow { stats: w, timing } = engine.step_window()?;
+        s.own.events += timing.stage_seconds.events;
+        s.own.broad += timing.stage_seconds.broad;
+        s.own.narrow += timing.stage_seconds.narrow;
+        s.own.commit += timing.stage_seconds.commit;
+        s.own.predict += timing.stage_seconds.predict;
+        s.own.cpu += timing.stage_seconds.cpu;
+        s.own.sent += timing.stage_seconds.sent;
         s.predicted_layers += w.predicted_layers;
         s.detected_layers += w.detected_layers;
         s.predicted_unreached += w.predicted_unreached;
@@ -1003,7 +1003,7 @@ fn measure<E: Executor>(
         s.queried_breakpoints += w.queried_breakpoints;
         s.certified_intervals += w.certified_intervals;
         s.block_certified_intervals += w.block_certified_intervals;
-        s.own.internal += w.stage_seconds.internal;
+        s.own.internal += timing.stage_seconds.internal;
         // Every pass runs the window's internal ticks (a pass cut short by a
         // blow-up, which is rolled back, would count a little high).
         s.internal_evaluations_all_passes +=
@@ -1011,14 +1011,14 @@ fn measure<E: Executor>(
         s.internal_ticks_all_passes += w.internal_events * (u64::from(w.rollbacks) + 1);
         s.internal_evaluations += w.internal_stencil_evaluations;
         s.layer_events += w.layer_events;
-        s.layer_evaluations += w.penalty_work.layer_evaluations;
+        s.layer_evaluations += timing.penalty_work.layer_evaluations;
         s.islands += w.islands;
         s.largest_island_layer_events += w.largest_island_layer_events;
-        s.far[0] += w.penalty_work.far_stencils;
-        s.far[1] += w.penalty_work.far_promoted;
-        s.far[2] += w.penalty_work.island_reruns;
-        s.far[3] += w.penalty_work.largest_unit_layer_events;
-        s.split_windows += u64::from(w.penalty_work.split);
+        s.far[0] += timing.penalty_work.far_stencils;
+        s.far[1] += timing.penalty_work.far_promoted;
+        s.far[2] += timing.penalty_work.island_reruns;
+        s.far[3] += timing.penalty_work.largest_unit_layer_events;
+        s.split_windows += u64::from(timing.penalty_work.split);
         s.rollbacks += u64::from(w.rollbacks);
         s.active_stencils = w.active_stencils;
         s.max_depth = w.max_depth;

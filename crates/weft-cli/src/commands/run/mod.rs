@@ -641,8 +641,8 @@ fn step_to_end<E: Executor>(
         if let Some(range) = &job.trace_windows {
             weft_sim::trace::set_recording(range.contains(&engine.world.window_index));
         }
-        let stats = match engine.step_window() {
-            Ok(s) => s,
+        let window = match engine.step_window() {
+            Ok(w) => w,
             Err(SimError::Interrupted { .. }) => {
                 stopped_by = Some(job.stop.reason().unwrap_or("interrupt"));
                 break;
@@ -650,14 +650,14 @@ fn step_to_end<E: Executor>(
             Err(e) => return Err(e.into()),
         };
         if let Some((outputs, manifest)) = writer {
-            outputs.record_window(&stats)?;
+            outputs.record_window(&window)?;
             outputs.frames_due(&engine.world)?;
             progress.update(&progress::Snapshot {
                 time: engine.world.time(),
                 windows: engine.totals.windows,
                 rollbacks: engine.totals.rollbacks,
-                active: stats.active_stencils,
-                depth: stats.max_depth,
+                active: window.stats.active_stencils,
+                depth: window.stats.max_depth,
             });
             if saver.due(&job.scene.output, engine.world.window_index)
                 && engine.world.tick < end_tick

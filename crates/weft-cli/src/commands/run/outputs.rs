@@ -16,7 +16,7 @@ use anyhow::{bail, Context};
 use serde::{Deserialize, Serialize};
 use weft_io::checkpoint::OutputCursors;
 use weft_io::scene::FrameFormat;
-use weft_sim::{WindowStats, World};
+use weft_sim::{CommittedWindow, World};
 
 use super::faults;
 use super::line_file::LineFile;
@@ -138,10 +138,10 @@ impl RunOutputs {
     }
 
     /// Appends a committed window's lines.
-    pub fn record_window(&mut self, stats: &WindowStats) -> anyhow::Result<()> {
-        self.stats.append(&serde_json::to_string(stats)?)?;
+    pub fn record_window(&mut self, window: &CommittedWindow) -> anyhow::Result<()> {
+        self.stats.append(&serde_json::to_string(&window.stats)?)?;
         self.timing
-            .append(&serde_json::to_string(&stats.timing())?)?;
+            .append(&serde_json::to_string(&window.timing)?)?;
         Ok(())
     }
 
