@@ -17,6 +17,6 @@ pub mod metis;
 pub mod ranks;
 pub mod threads;
 
-pub use metis::{build_world, Metis};
+pub use metis::{build_world, build_world_on, Metis};
 pub use ranks::Ranks;
 pub use threads::Threads;

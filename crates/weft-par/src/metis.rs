@@ -9,7 +9,7 @@
 use metis::{Graph, Idx};
 use weft_core::NONE;
 use weft_sim::partition::{PartitionInput, Partitioner};
-use weft_sim::{SimError, World, WorldSpec};
+use weft_sim::{Executor, SimError, World, WorldSpec};
 
 /// The METIS partitioner (`METIS_PartGraphKway` on the dual graph).
 #[derive(Clone, Copy, Debug, Default)]
@@ -75,6 +75,12 @@ impl Partitioner for Metis {
 /// Builds `spec`'s world with METIS partitions.
 pub fn build_world(spec: &WorldSpec) -> Result<World, SimError> {
     World::build_with(spec, &Metis)
+}
+
+/// [`build_world`] with the internal step estimated on `exec`'s threads
+/// (`World::build_on`: the same world on any number).
+pub fn build_world_on<E: Executor>(spec: &WorldSpec, exec: &E) -> Result<World, SimError> {
+    World::build_on(spec, &Metis, exec)
 }
 
 #[cfg(test)]

@@ -312,6 +312,67 @@ fn twister_over_ranks_keeps_the_vertices_each_rank_reads() {
     }
 }
 
+/// The internal step is estimated (two Lanczos iterations over the
+/// assembled rest system, most of a world's build) range by range of
+/// vertices on a rank's threads: a world built on 2 and 3 threads has one
+/// thread's largest frequency, damping rate and step, bit for bit, and the
+/// same fingerprint; the crumple fixture run from one still ends on its
+/// hash.
+#[test]
+fn worlds_built_on_threads_have_one_threads_step() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    for (name, size) in [("crumple", 300), ("twister", 600), ("drape", 400)] {
+        let sets = [format!("size={size}"), "time.steps_per_window=25".into()];
+        let scene = load_scene(&dir.join(format!("{name}.toml")), &sets).unwrap();
+        let serial = weft_par::build_world(&scene.world).unwrap();
+        assert!(
+            serial.omega_max > 0.0 && serial.damping_rate > 0.0,
+            "{name}"
+        );
+        for threads in [2, 3] {
+            let pool = Threads::new(threads).unwrap();
+            let built = pool.install(|| weft_par::build_world_on(&scene.world, &pool));
+            let world = built.unwrap();
+            let what = format!("{name} on {threads} threads");
+            assert_eq!(
+                world.omega_max.to_bits(),
+                serial.omega_max.to_bits(),
+                "{what}"
+            );
+            assert_eq!(
+                world.damping_rate.to_bits(),
+                serial.damping_rate.to_bits(),
+                "{what}"
+            );
+            let h = |w: &weft_sim::World| w.lattice.h_el().to_bits();
+            assert_eq!(h(&world), h(&serial), "{what}: the internal step");
+            let fingerprint = weft_sim::hash::world_fingerprint;
+            assert_eq!(fingerprint(&world), fingerprint(&serial), "{what}");
+        }
+    }
+    let path = dir.join("crumple.toml");
+    let sets = [
+        "size=300".into(),
+        "time.end=0.24".into(),
+        "time.steps_per_window=25".into(),
+    ];
+    let scene = load_scene(&path, &sets).unwrap();
+    let pool = Threads::new(3).unwrap();
+    let world = pool
+        .install(|| weft_par::build_world_on(&scene.world, &pool))
+        .unwrap();
+    let mut e = Engine::new(world, Serial).unwrap();
+    let end = e.world.lattice.window_end_at_or_after(scene.end_time);
+    while e.world.tick < end {
+        e.step_window().unwrap();
+    }
+    assert_eq!(
+        e.state_hash(),
+        FIXTURE_HASH,
+        "crumple from a world built on 3 threads"
+    );
+}
+
 /// The state hash of `scene` after 4 windows on `exec`.
 fn twister_hash<E: Executor>(scene: &weft_io::scene::Scene, exec: E) -> String {
     let world = weft_par::build_world(&scene.world).unwrap();

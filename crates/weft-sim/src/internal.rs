@@ -770,19 +770,24 @@ impl InternalForces {
         }
     }
 
-    /// Largest angular frequency of the assembled rest system.
-    pub fn max_frequency(&self, rest: &[DVec3], mass: &[f64]) -> f64 {
-        self.key_ordered().model().max_frequency(rest, mass)
+    /// Largest angular frequency of the assembled rest system, assembled on
+    /// `exec`'s threads (the same bits on any number).
+    pub fn max_frequency<E: Executor>(&self, exec: &E, rest: &[DVec3], mass: &[f64]) -> f64 {
+        self.key_ordered()
+            .model()
+            .max_frequency_on(exec, rest, mass)
     }
 
     /// `gamma_max = λ_max(M⁻¹C)` (1/s) of the damping operator at the rest
     /// shape, 0 without damping: with `omega_max` it sets the explicit
     /// stability limit `h γ + h² ω² / 2 ≤ 2` ([`crate::materials::damping_step_limit`]).
-    pub fn max_damping_rate(&self, rest: &[DVec3], mass: &[f64]) -> f64 {
+    pub fn max_damping_rate<E: Executor>(&self, exec: &E, rest: &[DVec3], mass: &[f64]) -> f64 {
         if !self.damped {
             return 0.0;
         }
-        self.key_ordered().model().max_damping_rate(rest, mass)
+        self.key_ordered()
+            .model()
+            .max_damping_rate_on(exec, rest, mass)
     }
 
     /// The damping rate of material `m`'s elements alone, keeping only its

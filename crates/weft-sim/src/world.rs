@@ -13,6 +13,7 @@ use weft_core::{StencilKey, StencilKind, Topology, TriMesh, VertexFaces};
 use crate::clock::{Lattice, Tick};
 use crate::config::{ContactConfig, LimitsConfig, TimeConfig};
 use crate::error::{Place, SimError};
+use crate::executor::{Executor, Serial};
 use crate::internal::InternalForces;
 use crate::kinematics::{Motion, Script};
 use crate::layers::{resolved_depth, ActiveLayers, LayerSchedule};
@@ -154,6 +155,17 @@ impl World {
 
     /// [`World::build`] with the partitions made by `partitioner`.
     pub fn build_with(spec: &WorldSpec, partitioner: &dyn Partitioner) -> Result<Self, SimError> {
+        Self::build_on(spec, partitioner, &Serial)
+    }
+
+    /// [`World::build_with`], estimating the internal step (two Lanczos
+    /// iterations over the assembled rest system, most of the build) on
+    /// `exec`'s threads: the same world, bit for bit, on any number.
+    pub fn build_on<E: Executor>(
+        spec: &WorldSpec,
+        partitioner: &dyn Partitioner,
+        exec: &E,
+    ) -> Result<Self, SimError> {
         if !spec.gravity.is_finite() {
             return Err(SimError::Config(format!(
                 "gravity {:?} is not finite",
@@ -374,8 +386,8 @@ impl World {
         // omega_max` of the assembled rest system, and at most
         // `DAMPING_SAFETY` times its limit with damping (the root of
         // `h γ + h² ω² / 2 = 2`, `step.rs`).
-        let omega_max = internal.max_frequency(&rest_all, &mass);
-        let gamma_max = internal.max_damping_rate(&rest_all, &mass);
+        let omega_max = internal.max_frequency(exec, &rest_all, &mass);
+        let gamma_max = internal.max_damping_rate(exec, &rest_all, &mass);
         let h_el = match spec.time.internal_step {
             Some(h) if h > 0.0 && h.is_finite() => {
                 // A given step may not exceed the explicit stability limit

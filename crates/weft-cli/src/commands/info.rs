@@ -9,6 +9,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use anyhow::Context;
 use clap::Args;
 use serde::Serialize;
 use weft_core::mesh::bounding_box;
@@ -127,7 +128,9 @@ fn object_info(w: &World, o: &weft_sim::world::ObjectInfo) -> ObjectInfo {
 /// Builds the scene, collects its figures and runs the engine's start-state
 /// check on it.
 pub fn scene_info(scene: &weft_io::scene::Scene) -> anyhow::Result<SceneInfo> {
-    let w = weft_par::build_world(&scene.world)?;
+    // The internal step's estimate, most of the build, on every core.
+    let pool = weft_par::Threads::new(0).context("cannot start the worker threads")?;
+    let w = pool.install(|| weft_par::build_world_on(&scene.world, &pool))?;
     let objects = w.objects.iter().map(|o| object_info(&w, o)).collect();
     let pins = scene
         .world

@@ -6,6 +6,8 @@
 //! no reorthogonalisation; Ritz values approach `λ_max` from below and converge much
 //! faster than plain power iteration for the clustered top of a cloth spectrum) with
 //! Hessian-vector products by central differences of the assembled gradient.
+//! On an executor with threads, each product is assembled range by range of
+//! vertices ([`VertexRanges`]) with the serial assembly's bits.
 //! [`ElasticModel::gershgorin_bound`] gives the rigorous upper bound
 //! `sqrt(max_row Σ_e Σ_col |K^e| d_i d_j)` from finite-difference element Hessians
 //! (typically 5–15 % above `omega_max` on cloth grids); it is the safety check: a
@@ -28,7 +30,8 @@
 //! damped one, which is the worst case whenever those coincide (the usual case:
 //! both are the shortest-wavelength membrane modes).
 
-use super::ElasticModel;
+use super::{ElasticModel, HingeElement, Material, StretchElement};
+use crate::executor::{Executor, Serial};
 use glam::DVec3;
 
 /// Most Lanczos steps.
@@ -93,26 +96,218 @@ impl ElasticModel<'_> {
     /// `omega_max = sqrt(λ_max(M^-1 K))` (rad/s) of the assembled rest system
     /// (0 without elements). Use with [`stable_step`].
     pub fn max_frequency(&self, rest: &[DVec3], masses: &[f64]) -> f64 {
-        model_max_frequency(rest, masses, self)
+        self.max_frequency_on(&Serial, rest, masses)
+    }
+    /// [`ElasticModel::max_frequency`] with the assembly on `exec`'s threads
+    /// (this rank's; the same bits on any number).
+    pub fn max_frequency_on<E: Executor>(&self, exec: &E, rest: &[DVec3], masses: &[f64]) -> f64 {
+        model_max_frequency(exec, rest, masses, self)
     }
     /// `gamma_max = λ_max(M^-1 C)` (1/s) of the damping operator at the rest
     /// shape, for [`damping_step_limit`].
     pub fn max_damping_rate(&self, rest: &[DVec3], masses: &[f64]) -> f64 {
-        model_max_damping_rate(rest, masses, self)
+        self.max_damping_rate_on(&Serial, rest, masses)
+    }
+    /// [`ElasticModel::max_damping_rate`] on `exec`'s threads (the same bits).
+    pub fn max_damping_rate_on<E: Executor>(
+        &self,
+        exec: &E,
+        rest: &[DVec3],
+        masses: &[f64],
+    ) -> f64 {
+        model_max_damping_rate(exec, rest, masses, self)
     }
     /// Gershgorin upper bound of `omega_max` (rad/s).
     pub fn gershgorin_bound(&self, rest: &[DVec3], masses: &[f64]) -> f64 {
-        model_gershgorin_bound(rest, masses, self)
+        let ranges = VertexRanges::new(self, rest.len(), 1);
+        model_gershgorin_bound(&Serial, &ranges, rest, masses, self)
     }
 }
 
-fn model_max_frequency(rest: &[DVec3], masses: &[f64], model: &ElasticModel) -> f64 {
+/// Contiguous ranges of vertices, one task each, with the elements that
+/// touch each range, in element order (stretch elements, then hinges).
+///
+/// The serial assembly (`ElasticModel::add_gradient`) adds each vertex's
+/// contributions in element order, the stretch elements first. A range's
+/// task walks its elements in that same order and adds only to its own
+/// vertices, so every vertex gets the same additions in the same order:
+/// the same bits on any number of ranges. An element on the border of two
+/// ranges is evaluated once in each.
+struct VertexRanges {
+    /// `bounds[k]..bounds[k + 1]` is range `k`'s vertices.
+    bounds: Vec<usize>,
+    stretch: Vec<Vec<u32>>,
+    hinges: Vec<Vec<u32>>,
+}
+
+impl VertexRanges {
+    /// At most `tasks` ranges of `n` vertices, cut where the element corners
+    /// (the work) are shared about equally.
+    fn new(model: &ElasticModel, n: usize, tasks: usize) -> Self {
+        let corners = (model.stretch.iter().map(|e| &e.verts[..]))
+            .chain(model.hinges.iter().map(|e| &e.verts[..]));
+        let mut weight = vec![0u64; n];
+        for verts in corners {
+            for &v in verts {
+                weight[v as usize] += 1;
+            }
+        }
+        let total: u64 = weight.iter().sum();
+        let tasks = tasks.clamp(1, n.max(1)) as u64;
+        let mut bounds = vec![0];
+        let mut done = 0u64;
+        for (v, &w) in weight.iter().enumerate() {
+            done += w;
+            let cut = bounds.len() as u64;
+            if cut < tasks && done * tasks >= total * cut && v + 1 < n {
+                bounds.push(v + 1);
+            }
+        }
+        bounds.push(n);
+        let range_of = |v: u32| bounds.partition_point(|&b| b <= v as usize) - 1;
+        let mut stretch = vec![Vec::new(); bounds.len() - 1];
+        let mut hinges = vec![Vec::new(); bounds.len() - 1];
+        let list = |lists: &mut Vec<Vec<u32>>, j: usize, verts: &[u32]| {
+            let mut seen = [usize::MAX; 4];
+            for (c, &v) in verts.iter().enumerate() {
+                let k = range_of(v);
+                if !seen[..c].contains(&k) {
+                    lists[k].push(j as u32);
+                }
+                seen[c] = k;
+            }
+        };
+        for (j, e) in model.stretch.iter().enumerate() {
+            list(&mut stretch, j, &e.verts);
+        }
+        for (j, e) in model.hinges.iter().enumerate() {
+            list(&mut hinges, j, &e.verts);
+        }
+        Self {
+            bounds,
+            stretch,
+            hinges,
+        }
+    }
+
+    /// Range `k`'s stretch elements and its hinges, each with its material,
+    /// in element order.
+    fn elements<'s, 'm: 's>(
+        &'s self,
+        k: usize,
+        model: &ElasticModel<'m>,
+    ) -> (
+        impl Iterator<Item = (&'m StretchElement, &'m Material)> + 's,
+        impl Iterator<Item = (&'m HingeElement, &'m Material)> + 's,
+    ) {
+        let (stretch, hinges, materials) = (model.stretch, model.hinges, model.materials);
+        let (sm, hm) = (model.stretch_material, model.hinge_material);
+        let s = (self.stretch[k].iter()).map(move |&j| {
+            let j = j as usize;
+            (&stretch[j], &materials[sm[j] as usize])
+        });
+        let h = (self.hinges[k].iter()).map(move |&j| {
+            let j = j as usize;
+            (&hinges[j], &materials[hm[j] as usize])
+        });
+        (s, h)
+    }
+
+    /// `out += f(element)` per corner, range by range, each range adding to
+    /// its own vertices only (see the type's doc: the serial bits).
+    fn assemble<E: Executor>(
+        &self,
+        exec: &E,
+        model: &ElasticModel,
+        out: &mut [DVec3],
+        stretch: impl Fn(&StretchElement, &Material) -> [DVec3; 3] + Sync,
+        hinge: impl Fn(&HingeElement, &Material) -> [DVec3; 4] + Sync,
+    ) {
+        exec.for_each_chunk(out, &self.bounds, &|k, own| {
+            let start = self.bounds[k];
+            let mut add = |v: u32, g: DVec3| {
+                if let Some(o) = (v as usize).checked_sub(start).and_then(|j| own.get_mut(j)) {
+                    *o += g;
+                }
+            };
+            let (s, h) = self.elements(k, model);
+            for (e, m) in s {
+                let g = stretch(e, m);
+                for c in 0..3 {
+                    add(e.verts[c], g[c]);
+                }
+            }
+            for (e, m) in h {
+                let g = hinge(e, m);
+                for c in 0..4 {
+                    add(e.verts[c], g[c]);
+                }
+            }
+        });
+    }
+
+    /// [`ElasticModel::add_gradient`], range by range (one range: that
+    /// function itself, whose walk over the element slices is faster).
+    fn add_gradient<E: Executor>(
+        &self,
+        exec: &E,
+        model: &ElasticModel,
+        x: &[DVec3],
+        grad: &mut [DVec3],
+    ) {
+        if self.bounds.len() <= 2 {
+            return model.add_gradient(x, grad);
+        }
+        self.assemble(
+            exec,
+            model,
+            grad,
+            |e, m| e.gradient(&gather(x, e.verts), m),
+            |e, m| e.gradient(&gather(x, e.verts), m.bending_stiffness),
+        );
+    }
+
+    /// [`ElasticModel::add_damping_force`], range by range (one range:
+    /// that function itself).
+    fn add_damping_force<E: Executor>(
+        &self,
+        exec: &E,
+        model: &ElasticModel,
+        x: &[DVec3],
+        v: &[DVec3],
+        force: &mut [DVec3],
+    ) {
+        if self.bounds.len() <= 2 {
+            return model.add_damping_force(x, v, force);
+        }
+        self.assemble(
+            exec,
+            model,
+            force,
+            |e, m| e.damping_force(&gather(x, e.verts), &gather(v, e.verts), m),
+            |e, m| e.damping_force(&gather(x, e.verts), &gather(v, e.verts), m),
+        );
+    }
+}
+
+#[inline(always)]
+fn gather<const N: usize>(x: &[DVec3], verts: [u32; N]) -> [DVec3; N] {
+    verts.map(|i| x[i as usize])
+}
+
+fn model_max_frequency<E: Executor>(
+    exec: &E,
+    rest: &[DVec3],
+    masses: &[f64],
+    model: &ElasticModel,
+) -> f64 {
     let d = inv_sqrt_masses(masses);
     let ell = length_scale(rest, model);
     if !ell.is_finite() {
         return 0.0;
     }
     let n = rest.len();
+    let ranges = VertexRanges::new(model, n, exec.threads_per_rank());
     let (mut xp, mut xm) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
     let (mut gp, mut gm) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
     let lambda = lanczos_max(&d, |u, out| {
@@ -132,8 +327,8 @@ fn model_max_frequency(rest: &[DVec3], masses: &[f64], model: &ElasticModel) -> 
         }
         gp.fill(DVec3::ZERO);
         gm.fill(DVec3::ZERO);
-        model.add_gradient(&xp, &mut gp);
-        model.add_gradient(&xm, &mut gm);
+        ranges.add_gradient(exec, model, &xp, &mut gp);
+        ranges.add_gradient(exec, model, &xm, &mut gm);
         for i in 0..n {
             out[i] = (gp[i] - gm[i]) * (d[i] / (2.0 * s));
         }
@@ -141,7 +336,7 @@ fn model_max_frequency(rest: &[DVec3], masses: &[f64], model: &ElasticModel) -> 
     // Safety check: Lanczos Ritz values lie below λ_max <= Gershgorin; a value that
     // is not finite or above the bound (finite-difference trouble) is replaced by
     // the bound, which is always safe.
-    let bound = model_gershgorin_bound(rest, masses, model);
+    let bound = model_gershgorin_bound(exec, &ranges, rest, masses, model);
     if lambda.is_finite() && lambda.max(0.0).sqrt() <= bound * (1.0 + 1e-6) {
         lambda.max(0.0).sqrt()
     } else {
@@ -149,9 +344,15 @@ fn model_max_frequency(rest: &[DVec3], masses: &[f64], model: &ElasticModel) -> 
     }
 }
 
-fn model_max_damping_rate(rest: &[DVec3], masses: &[f64], model: &ElasticModel) -> f64 {
+fn model_max_damping_rate<E: Executor>(
+    exec: &E,
+    rest: &[DVec3],
+    masses: &[f64],
+    model: &ElasticModel,
+) -> f64 {
     let d = inv_sqrt_masses(masses);
     let n = rest.len();
+    let ranges = VertexRanges::new(model, n, exec.threads_per_rank());
     let mut v = vec![DVec3::ZERO; n];
     let mut f = vec![DVec3::ZERO; n];
     let gamma = lanczos_max(&d, |u, out| {
@@ -159,7 +360,7 @@ fn model_max_damping_rate(rest: &[DVec3], masses: &[f64], model: &ElasticModel) 
             v[i] = u[i] * d[i];
         }
         f.fill(DVec3::ZERO);
-        model.add_damping_force(rest, &v, &mut f);
+        ranges.add_damping_force(exec, model, rest, &v, &mut f);
         for i in 0..n {
             out[i] = f[i] * (-d[i]);
         }
@@ -168,12 +369,13 @@ fn model_max_damping_rate(rest: &[DVec3], masses: &[f64], model: &ElasticModel) 
 }
 
 /// Central-difference Hessian of one element's gradient, accumulated as absolute
-/// row sums `Σ_j |H_ij| d_i d_j` into `rows` (3 per vertex).
+/// row sums `Σ_j |H_ij| d_i d_j` into `rows` (3 per vertex, of the vertices
+/// from `first` on that `rows` holds).
 fn add_abs_rows<const N: usize>(
     verts: [u32; N],
     rest: &[DVec3],
     d: &[f64],
-    rows: &mut [f64],
+    (rows, first): (&mut [f64], usize),
     grad: impl Fn(&[DVec3; N]) -> [DVec3; N],
 ) {
     let x0 = verts.map(|i| rest[i as usize]);
@@ -187,10 +389,16 @@ fn add_abs_rows<const N: usize>(
             xm[j][b] -= h;
             let (gp, gm) = (grad(&xp), grad(&xm));
             for i in 0..N {
+                let Some(row) = (verts[i] as usize).checked_sub(first).map(|r| 3 * r) else {
+                    continue;
+                };
+                if row >= rows.len() {
+                    continue;
+                }
                 let di = d[verts[i] as usize];
                 let col = (gp[i] - gm[i]) * (di * dj / (2.0 * h));
                 for a in 0..3 {
-                    rows[3 * verts[i] as usize + a] += col[a].abs();
+                    rows[row + a] += col[a].abs();
                 }
             }
         }
@@ -198,17 +406,32 @@ fn add_abs_rows<const N: usize>(
 }
 
 /// `sqrt(max_row Σ |D K D|)` with the assembled `K` bounded element by element
-/// (finite-difference element Hessians).
-fn model_gershgorin_bound(rest: &[DVec3], masses: &[f64], model: &ElasticModel) -> f64 {
+/// (finite-difference element Hessians), range by range of vertices (each
+/// row's sum in element order, as one range has it; the largest row is
+/// the same whatever order the ranges come in).
+fn model_gershgorin_bound<E: Executor>(
+    exec: &E,
+    ranges: &VertexRanges,
+    rest: &[DVec3],
+    masses: &[f64],
+    model: &ElasticModel,
+) -> f64 {
     let d = inv_sqrt_masses(masses);
     let mut rows = vec![0.0; 3 * rest.len()];
-    for (e, m) in model.stretch_iter() {
-        add_abs_rows(e.verts, rest, &d, &mut rows, |x| e.gradient(x, m));
-    }
-    for (e, m) in model.hinge_iter() {
-        let k_b = m.bending_stiffness;
-        add_abs_rows(e.verts, rest, &d, &mut rows, |x| e.gradient(x, k_b));
-    }
+    let row_bounds: Vec<usize> = ranges.bounds.iter().map(|b| 3 * b).collect();
+    exec.for_each_chunk(&mut rows, &row_bounds, &|k, own| {
+        let first = ranges.bounds[k];
+        let (s, h) = ranges.elements(k, model);
+        for (e, m) in s {
+            add_abs_rows(e.verts, rest, &d, (&mut *own, first), |x| e.gradient(x, m));
+        }
+        for (e, m) in h {
+            let k_b = m.bending_stiffness;
+            add_abs_rows(e.verts, rest, &d, (&mut *own, first), |x| {
+                e.gradient(x, k_b)
+            });
+        }
+    });
     rows.iter().fold(0.0f64, |a, &r| a.max(r)).sqrt()
 }
 
@@ -329,4 +552,174 @@ fn tridiagonal_max(alpha: &[f64], beta: &[f64]) -> f64 {
         }
     }
     hi
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use weft_core::Topology;
+    use weft_testkit::Rng;
+
+    /// An `nx × ny` grid, jittered and curved, its vertices numbered in a
+    /// random order when `shuffled` (elements then span many ranges), with
+    /// its stretch elements and hinges, damped.
+    fn mesh(
+        rng: &mut Rng,
+        (nx, ny): (usize, usize),
+        shuffled: bool,
+    ) -> (Vec<DVec3>, Vec<StretchElement>, Vec<HingeElement>) {
+        let n = nx * ny;
+        let mut order: Vec<u32> = (0..n as u32).collect();
+        if shuffled {
+            for i in (1..n).rev() {
+                order.swap(i, rng.below(i as u64 + 1) as usize);
+            }
+        }
+        let mut rest = vec![DVec3::ZERO; n];
+        for j in 0..ny {
+            for i in 0..nx {
+                let p = DVec3::new(0.01 * i as f64, 0.01 * j as f64, 0.0) + rng.vec(0.002);
+                rest[order[j * nx + i] as usize] = p;
+            }
+        }
+        let id = |i: usize, j: usize| order[j * nx + i];
+        let mut triangles = Vec::new();
+        for j in 0..ny - 1 {
+            for i in 0..nx - 1 {
+                triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        let topo = Topology::build(n, &triangles).unwrap();
+        let at = |v: &[u32]| v.iter().map(|&i| rest[i as usize]).collect::<Vec<_>>();
+        let stretch = (triangles.iter())
+            .map(|t| StretchElement::new(*t, at(t).try_into().unwrap()).unwrap())
+            .collect();
+        let hinges = (topo.hinges.iter())
+            .map(|h| {
+                let v = [h.edge[0], h.edge[1], h.wings[0], h.wings[1]];
+                HingeElement::new(v, at(&v).try_into().unwrap()).unwrap()
+            })
+            .collect();
+        (rest, stretch, hinges)
+    }
+
+    fn bits(v: &[DVec3]) -> Vec<[u64; 3]> {
+        v.iter().map(|p| p.to_array().map(f64::to_bits)).collect()
+    }
+
+    /// Range by range, the assembled gradient, damping force and Gershgorin
+    /// bound have the serial assembly's bits, on any number of ranges, with
+    /// the vertices numbered along the grid or at random.
+    #[test]
+    fn ranges_assemble_the_serial_bits() {
+        let mut rng = Rng(0x5eed_0a55);
+        let material = Material {
+            stretch_damping: 2e-5,
+            bend_damping: 3e-9,
+            ..Material::plate(0.15, 2.0e6, 0.3, 4.0e-4)
+        };
+        for (case, shuffled) in [(0, false), (1, true), (2, true)] {
+            let size = [(9, 7), (6, 11), (13, 5)][case];
+            let (rest, stretch, hinges) = mesh(&mut rng, size, shuffled);
+            let materials = [material];
+            let model = ElasticModel {
+                stretch_material: &vec![0; stretch.len()],
+                hinge_material: &vec![0; hinges.len()],
+                stretch: &stretch,
+                hinges: &hinges,
+                materials: &materials,
+            };
+            let n = rest.len();
+            let x: Vec<DVec3> = rest.iter().map(|p| *p + rng.vec(1e-3)).collect();
+            let v: Vec<DVec3> = (0..n).map(|_| rng.vec(0.5)).collect();
+            let (mut grad, mut force) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
+            model.add_gradient(&x, &mut grad);
+            model.add_damping_force(&x, &v, &mut force);
+            let masses = vec![1e-4; n];
+            let bound = model.gershgorin_bound(&rest, &masses);
+            for tasks in [1, 2, 3, 5, 8, 64] {
+                let what = format!("case {case}, {tasks} ranges");
+                let ranges = VertexRanges::new(&model, n, tasks);
+                let b = &ranges.bounds;
+                // As many ranges as tasks where each holds several
+                // vertices; at most as many always.
+                assert!(b.len() - 1 <= tasks, "{what}: {b:?}");
+                assert!(tasks > 8 || b.len() - 1 == tasks, "{what}: {b:?}");
+                assert!(b[0] == 0 && b[b.len() - 1] == n, "{what}: {b:?}");
+                assert!(b.windows(2).all(|w| w[0] < w[1]), "{what}: {b:?}");
+                let mut g = vec![DVec3::ZERO; n];
+                ranges.add_gradient(&Serial, &model, &x, &mut g);
+                assert_eq!(bits(&g), bits(&grad), "{what}: gradient");
+                let mut f = vec![DVec3::ZERO; n];
+                ranges.add_damping_force(&Serial, &model, &x, &v, &mut f);
+                assert_eq!(bits(&f), bits(&force), "{what}: damping force");
+                let on_ranges = model_gershgorin_bound(&Serial, &ranges, &rest, &masses, &model);
+                assert_eq!(on_ranges.to_bits(), bound.to_bits(), "{what}: Gershgorin");
+            }
+        }
+    }
+
+    /// An executor that runs everything in order on the calling thread but
+    /// says it has `0` threads: the step estimates cut that many ranges.
+    struct Pretend(usize);
+
+    impl Executor for Pretend {
+        fn for_each_chunk<T: Send>(
+            &self,
+            data: &mut [T],
+            bounds: &[usize],
+            task: &(dyn Fn(usize, &mut [T]) + Sync),
+        ) {
+            Serial.for_each_chunk(data, bounds, task)
+        }
+        fn map<R: Send>(&self, n: usize, f: &(dyn Fn(usize) -> R + Sync)) -> Vec<R> {
+            Serial.map(n, f)
+        }
+        fn name(&self) -> String {
+            format!("pretend {}", self.0)
+        }
+        fn threads_per_rank(&self) -> usize {
+            self.0
+        }
+    }
+
+    /// The largest frequency and damping rate, Lanczos over range-by-range
+    /// products, have the bits of one range's.
+    #[test]
+    fn step_estimates_have_the_same_bits_on_any_number_of_ranges() {
+        let mut rng = Rng(0x0e6a);
+        let (rest, stretch, hinges) = mesh(&mut rng, (10, 8), true);
+        let materials = [Material {
+            stretch_damping: 2e-5,
+            bend_damping: 3e-9,
+            ..Material::plate(0.15, 2.0e6, 0.3, 4.0e-4)
+        }];
+        let model = ElasticModel {
+            stretch_material: &vec![0; stretch.len()],
+            hinge_material: &vec![0; hinges.len()],
+            stretch: &stretch,
+            hinges: &hinges,
+            materials: &materials,
+        };
+        let masses: Vec<f64> = (0..rest.len()).map(|_| rng.uniform(1e-5, 1e-4)).collect();
+        let omega = model.max_frequency(&rest, &masses);
+        let gamma = model.max_damping_rate(&rest, &masses);
+        assert!(omega > 0.0 && gamma > 0.0);
+        for tasks in [2, 3, 7] {
+            let exec = Pretend(tasks);
+            let o = model.max_frequency_on(&exec, &rest, &masses);
+            let g = model.max_damping_rate_on(&exec, &rest, &masses);
+            assert_eq!(
+                o.to_bits(),
+                omega.to_bits(),
+                "{tasks} ranges: {o} vs {omega}"
+            );
+            assert_eq!(
+                g.to_bits(),
+                gamma.to_bits(),
+                "{tasks} ranges: {g} vs {gamma}"
+            );
+        }
+    }
 }

@@ -476,7 +476,10 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
     // (the results do not depend on it).
     scene.world.workers = rank_list.iter().max().copied().unwrap_or(1)
         * a.threads.iter().max().copied().unwrap_or(1).max(1);
-    let world = weft_par::build_world(&scene.world)?;
+    let build_pool = Threads::new(threads.iter().max().copied().unwrap_or(1).max(1))
+        .context("cannot start the worker threads")?;
+    let world = build_pool.install(|| weft_par::build_world_on(&scene.world, &build_pool))?;
+    drop(build_pool);
     let hash = scene_hash(&scene, &world);
     // The world holds the meshes now: the scene's copies are not kept
     // through the runs, whose peak memory is measured.

@@ -393,17 +393,20 @@ pub(crate) struct Prepared {
 
 impl Prepared {
     /// Builds `scene`'s world for `workers` = ranks × threads (the
-    /// automatic partition count depends on it, the results do not) and,
-    /// when `resume`, reads `out`'s checkpoint.
-    pub(crate) fn new(
+    /// automatic partition count depends on it, the results do not), with
+    /// the internal step estimated on `local`'s threads (this rank's; the
+    /// same bits on any number) and, when `resume`, reads `out`'s
+    /// checkpoint.
+    pub(crate) fn new<E: Executor>(
         scene: &Scene,
         out: &Path,
         resume: bool,
         workers: usize,
+        local: &E,
     ) -> anyhow::Result<Self> {
         let mut spec = scene.world.clone();
         spec.workers = workers;
-        let world = weft_par::build_world(&spec)?;
+        let world = weft_par::build_world_on(&spec, local)?;
         let hash = scene_hash(scene, &world);
         let checkpoint = match resume {
             true => Some(read_resumable(out, &hash)?),
@@ -420,7 +423,7 @@ impl Prepared {
 /// Runs a job: see the module documentation for what it writes.
 pub fn execute<E: Executor>(job: RunJob<'_>, exec: E) -> anyhow::Result<RunSummary> {
     let workers = exec.ranks() * exec.threads_per_rank();
-    let prepared = Prepared::new(job.scene, job.out, job.resume, workers)?;
+    let prepared = Prepared::new(job.scene, job.out, job.resume, workers, &exec)?;
     execute_prepared(job, prepared, exec)
 }
 

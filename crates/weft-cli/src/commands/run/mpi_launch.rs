@@ -50,7 +50,8 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     let setup = prepare(&a).and_then(|(scene, out, resume)| {
         let threads = Threads::new(a.threads).context("cannot start the worker threads")?;
         let workers = transport.size() * threads.threads();
-        let prepared = Prepared::new(&scene, &out, resume, workers)?;
+        let prepared =
+            threads.install(|| Prepared::new(&scene, &out, resume, workers, &threads))?;
         Ok((scene, out, resume, prepared, threads))
     });
     let failed = setup
