@@ -557,17 +557,14 @@ fn tridiagonal_max(alpha: &[f64], beta: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::internal::KeyOrdered;
     use weft_core::Topology;
     use weft_testkit::Rng;
 
     /// An `nx × ny` grid, jittered and curved, its vertices numbered in a
-    /// random order when `shuffled` (elements then span many ranges), with
-    /// its stretch elements and hinges, damped.
-    fn mesh(
-        rng: &mut Rng,
-        (nx, ny): (usize, usize),
-        shuffled: bool,
-    ) -> (Vec<DVec3>, Vec<StretchElement>, Vec<HingeElement>) {
+    /// random order when `shuffled` (elements then span many ranges): its
+    /// rest positions and its elements, of one damped material.
+    fn mesh(rng: &mut Rng, (nx, ny): (usize, usize), shuffled: bool) -> (Vec<DVec3>, KeyOrdered) {
         let n = nx * ny;
         let mut order: Vec<u32> = (0..n as u32).collect();
         if shuffled {
@@ -592,16 +589,27 @@ mod tests {
         }
         let topo = Topology::build(n, &triangles).unwrap();
         let at = |v: &[u32]| v.iter().map(|&i| rest[i as usize]).collect::<Vec<_>>();
-        let stretch = (triangles.iter())
+        let stretch: Vec<_> = (triangles.iter())
             .map(|t| StretchElement::new(*t, at(t).try_into().unwrap()).unwrap())
             .collect();
-        let hinges = (topo.hinges.iter())
+        let hinges: Vec<_> = (topo.hinges.iter())
             .map(|h| {
                 let v = [h.edge[0], h.edge[1], h.wings[0], h.wings[1]];
                 HingeElement::new(v, at(&v).try_into().unwrap()).unwrap()
             })
             .collect();
-        (rest, stretch, hinges)
+        let elements = KeyOrdered {
+            stretch_material: vec![0; stretch.len()],
+            hinge_material: vec![0; hinges.len()],
+            stretch,
+            hinges,
+            materials: vec![Material {
+                stretch_damping: 2e-5,
+                bend_damping: 3e-9,
+                ..Material::plate(0.15, 2.0e6, 0.3, 4.0e-4)
+            }],
+        };
+        (rest, elements)
     }
 
     fn bits(v: &[DVec3]) -> Vec<[u64; 3]> {
@@ -614,22 +622,10 @@ mod tests {
     #[test]
     fn ranges_assemble_the_serial_bits() {
         let mut rng = Rng(0x5eed_0a55);
-        let material = Material {
-            stretch_damping: 2e-5,
-            bend_damping: 3e-9,
-            ..Material::plate(0.15, 2.0e6, 0.3, 4.0e-4)
-        };
         for (case, shuffled) in [(0, false), (1, true), (2, true)] {
             let size = [(9, 7), (6, 11), (13, 5)][case];
-            let (rest, stretch, hinges) = mesh(&mut rng, size, shuffled);
-            let materials = [material];
-            let model = ElasticModel {
-                stretch_material: &vec![0; stretch.len()],
-                hinge_material: &vec![0; hinges.len()],
-                stretch: &stretch,
-                hinges: &hinges,
-                materials: &materials,
-            };
+            let (rest, elements) = mesh(&mut rng, size, shuffled);
+            let (model, rest) = (elements.model(), &rest[..]);
             let n = rest.len();
             let x: Vec<DVec3> = rest.iter().map(|p| *p + rng.vec(1e-3)).collect();
             let v: Vec<DVec3> = (0..n).map(|_| rng.vec(0.5)).collect();
@@ -637,7 +633,7 @@ mod tests {
             model.add_gradient(&x, &mut grad);
             model.add_damping_force(&x, &v, &mut force);
             let masses = vec![1e-4; n];
-            let bound = model.gershgorin_bound(&rest, &masses);
+            let bound = model.gershgorin_bound(rest, &masses);
             for tasks in [1, 2, 3, 5, 8, 64] {
                 let what = format!("case {case}, {tasks} ranges");
                 let ranges = VertexRanges::new(&model, n, tasks);
@@ -654,7 +650,7 @@ mod tests {
                 let mut f = vec![DVec3::ZERO; n];
                 ranges.add_damping_force(&Serial, &model, &x, &v, &mut f);
                 assert_eq!(bits(&f), bits(&force), "{what}: damping force");
-                let on_ranges = model_gershgorin_bound(&Serial, &ranges, &rest, &masses, &model);
+                let on_ranges = model_gershgorin_bound(&Serial, &ranges, rest, &masses, &model);
                 assert_eq!(on_ranges.to_bits(), bound.to_bits(), "{what}: Gershgorin");
             }
         }
@@ -689,27 +685,16 @@ mod tests {
     #[test]
     fn step_estimates_have_the_same_bits_on_any_number_of_ranges() {
         let mut rng = Rng(0x0e6a);
-        let (rest, stretch, hinges) = mesh(&mut rng, (10, 8), true);
-        let materials = [Material {
-            stretch_damping: 2e-5,
-            bend_damping: 3e-9,
-            ..Material::plate(0.15, 2.0e6, 0.3, 4.0e-4)
-        }];
-        let model = ElasticModel {
-            stretch_material: &vec![0; stretch.len()],
-            hinge_material: &vec![0; hinges.len()],
-            stretch: &stretch,
-            hinges: &hinges,
-            materials: &materials,
-        };
+        let (rest, elements) = mesh(&mut rng, (10, 8), true);
+        let (model, rest) = (elements.model(), &rest[..]);
         let masses: Vec<f64> = (0..rest.len()).map(|_| rng.uniform(1e-5, 1e-4)).collect();
-        let omega = model.max_frequency(&rest, &masses);
-        let gamma = model.max_damping_rate(&rest, &masses);
+        let omega = model.max_frequency(rest, &masses);
+        let gamma = model.max_damping_rate(rest, &masses);
         assert!(omega > 0.0 && gamma > 0.0);
         for tasks in [2, 3, 7] {
             let exec = Pretend(tasks);
-            let o = model.max_frequency_on(&exec, &rest, &masses);
-            let g = model.max_damping_rate_on(&exec, &rest, &masses);
+            let o = model.max_frequency_on(&exec, rest, &masses);
+            let g = model.max_damping_rate_on(&exec, rest, &masses);
             assert_eq!(
                 o.to_bits(),
                 omega.to_bits(),
