@@ -7,7 +7,7 @@
 //! faster than plain power iteration for the clustered top of a cloth spectrum) with
 //! Hessian-vector products by central differences of the assembled gradient.
 //! On an executor with threads, each product is assembled range by range of
-//! vertices ([`VertexRanges`]) with the serial assembly's bits.
+//! vertices (`VertexRanges`) with the serial assembly's bits.
 //! [`ElasticModel::gershgorin_bound`] gives the rigorous upper bound
 //! `sqrt(max_row Σ_e Σ_col |K^e| d_i d_j)` from finite-difference element Hessians
 //! (typically 5–15 % above `omega_max` on cloth grids); it is the safety check: a
