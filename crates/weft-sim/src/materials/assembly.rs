@@ -20,8 +20,9 @@ pub struct ElasticModel<'a> {
     pub materials: &'a [Material],
 }
 
+/// The positions (or velocities) of an element's vertices.
 #[inline(always)]
-fn gather<const N: usize>(x: &[DVec3], verts: [u32; N]) -> [DVec3; N] {
+pub(super) fn gather<const N: usize>(x: &[DVec3], verts: [u32; N]) -> [DVec3; N] {
     verts.map(|i| x[i as usize])
 }
 

@@ -30,6 +30,7 @@
 //! damped one, which is the worst case whenever those coincide (the usual case:
 //! both are the shortest-wavelength membrane modes).
 
+use super::assembly::gather;
 use super::{ElasticModel, HingeElement, Material, StretchElement};
 use crate::executor::{Executor, Serial};
 use glam::DVec3;
@@ -288,11 +289,6 @@ impl VertexRanges {
             |e, m| e.damping_force(&gather(x, e.verts), &gather(v, e.verts), m),
         );
     }
-}
-
-#[inline(always)]
-fn gather<const N: usize>(x: &[DVec3], verts: [u32; N]) -> [DVec3; N] {
-    verts.map(|i| x[i as usize])
 }
 
 fn model_max_frequency<E: Executor>(
