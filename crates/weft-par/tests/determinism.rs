@@ -67,6 +67,18 @@ fn run_hooked<E: Executor>(
     set: &[String],
     after: &mut dyn FnMut(&mut Engine<E>, u32),
 ) -> Outcome {
+    let build = |spec: &weft_sim::WorldSpec| weft_par::build_world(spec).unwrap();
+    run_built(exec, partitions, set, &build, after)
+}
+
+/// [`run_hooked`] on the world `build` makes of the fixture's scene.
+fn run_built<E: Executor>(
+    exec: E,
+    partitions: usize,
+    set: &[String],
+    build: &dyn Fn(&weft_sim::WorldSpec) -> weft_sim::World,
+    after: &mut dyn FnMut(&mut Engine<E>, u32),
+) -> Outcome {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/crumple.toml");
     let mut sets = vec![
         "size=300".into(),
@@ -76,7 +88,7 @@ fn run_hooked<E: Executor>(
     ];
     sets.extend_from_slice(set);
     let scene = load_scene(&path, &sets).unwrap();
-    let world = weft_par::build_world(&scene.world).unwrap();
+    let world = build(&scene.world);
     assert_eq!(world.partitioning.count, partitions);
     let mut e = Engine::new(world, exec).unwrap();
     let end = e.world.lattice.window_end_at_or_after(scene.end_time);
@@ -350,25 +362,13 @@ fn worlds_built_on_threads_have_one_threads_step() {
             assert_eq!(fingerprint(&world), fingerprint(&serial), "{what}");
         }
     }
-    let path = dir.join("crumple.toml");
-    let sets = [
-        "size=300".into(),
-        "time.end=0.24".into(),
-        "time.steps_per_window=25".into(),
-    ];
-    let scene = load_scene(&path, &sets).unwrap();
     let pool = Threads::new(3).unwrap();
-    let world = pool
-        .install(|| weft_par::build_world_on(&scene.world, &pool))
-        .unwrap();
-    let mut e = Engine::new(world, Serial).unwrap();
-    let end = e.world.lattice.window_end_at_or_after(scene.end_time);
-    while e.world.tick < end {
-        e.step_window().unwrap();
-    }
+    let build = |spec: &weft_sim::WorldSpec| {
+        (pool.install(|| weft_par::build_world_on(spec, &pool))).unwrap()
+    };
+    let o = run_built(Serial, 4, &[], &build, &mut |_, _| {});
     assert_eq!(
-        e.state_hash(),
-        FIXTURE_HASH,
+        o.hash, FIXTURE_HASH,
         "crumple from a world built on 3 threads"
     );
 }
