@@ -590,6 +590,7 @@ impl<E: Executor> Engine<E> {
                         return Err(e.into());
                     }
                 };
+                self.traj.forget_fetched();
                 self.world.tick = t1;
                 let penalty_work = PenaltyWork {
                     split: counts.split,
@@ -642,7 +643,10 @@ impl<E: Executor> Engine<E> {
                 return Ok(CommittedWindow { stats, timing });
             }
             confirmed += reported.len() as u64;
-            // Roll back: restore the state, keep (and extend) the layers.
+            // Roll back: forget the polylines fetched for the pass (the next
+            // pass fetches its own), restore the state, keep (and extend)
+            // the layers.
+            self.traj.forget_fetched();
             snap.restore(&mut self.world);
             // Each reported stencil gets `layers_per_detection` more layers,
             // or, with prediction on, more when its closing energy at the
