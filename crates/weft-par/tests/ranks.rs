@@ -220,12 +220,23 @@ fn rank_shares_mirror_and_cover_every_fold() {
                     let theirs = shares[peer].pass([(0u32, island_rank)]);
                     assert_eq!(pass.recv[peer], theirs.send[r], "{ctx}: from {peer}");
                 }
+                // A scripted vertex is never received: a rank keeping it
+                // current computes its chord itself.
+                let scripted = |i: usize| w.script_of[i].is_some();
+                assert!((0..w.num_vertices()).any(scripted), "{ctx}: an obstacle");
                 for i in 0..w.num_vertices() {
                     let received = pass.recv[share.owner[i] as usize].contains(&(i as u32));
+                    let elsewhere = pass.live[i] && !share.owns(i);
                     assert_eq!(
                         received,
-                        pass.live[i] && !share.owns(i),
+                        elsewhere && !scripted(i),
                         "{ctx}: vertex {i} received"
+                    );
+                    let computed = pass.scripted.binary_search(&(i as u32)).is_ok();
+                    assert_eq!(
+                        computed,
+                        elsewhere && scripted(i),
+                        "{ctx}: vertex {i} computed here"
                     );
                 }
                 // Units moved to other ranks mid-pass (`keep_live`, called
@@ -233,9 +244,12 @@ fn rank_shares_mirror_and_cover_every_fold() {
                 // they went, and each rank still receives from each peer
                 // exactly what the peer sends it.
                 let n = w.num_vertices();
+                // (the last vertices are the obstacle's, scripted)
                 let moves: Vec<(usize, u32)> = (0..40)
                     .map(|k| ((k * 7919 + 13) % n, ((k * 31) % ranks) as u32))
+                    .chain((n - 5..n).map(|i| (i, ((i * 7) % ranks) as u32)))
                     .collect();
+                assert!(moves.iter().any(|&(i, _)| scripted(i)));
                 let moved = |s: &RankShare| {
                     let mut pass = s.pass([(0u32, island_rank)]);
                     for &(i, to) in &moves {
@@ -255,8 +269,12 @@ fn rank_shares_mirror_and_cover_every_fold() {
                 }
                 for i in 0..n {
                     let received = mine.recv[share.owner[i] as usize].contains(&(i as u32));
-                    assert_eq!(received, mine.live[i] && !share.owns(i), "{ctx}: moved {i}");
+                    let elsewhere = mine.live[i] && !share.owns(i);
+                    let computed = mine.scripted.binary_search(&(i as u32)).is_ok();
+                    assert_eq!(received, elsewhere && !scripted(i), "{ctx}: moved {i}");
+                    assert_eq!(computed, elsewhere && scripted(i), "{ctx}: moved {i}");
                 }
+                assert!(mine.scripted.is_sorted(), "{ctx}");
                 // Live here: owned, or read here by a partition or the
                 // island (never more).
                 for i in 0..w.num_vertices() {

@@ -98,6 +98,9 @@ pub struct RankShare {
     /// Per vertex: owned here, and folds a slot computed on another rank
     /// (its fold waits for the boundary slots).
     pub folds_remote: Vec<bool>,
+    /// Per vertex: follows a script (kinematic), so whoever keeps it
+    /// current computes its new velocities ([`PassShare::scripted`]).
+    pub scripted: Vec<bool>,
     /// Per vertex `i`: the ranks other than its owner whose partitions read
     /// it (`reader_ranks[reader_start[i]..reader_start[i + 1]]`, ascending).
     reader_start: Vec<u32>,
@@ -159,6 +162,14 @@ pub struct PassShare {
     /// Per peer rank: the vertices the peer owns that this rank keeps live
     /// (ascending; the peer's `send` for this rank).
     pub recv: Vec<Vec<u32>>,
+    /// The scripted vertices this rank keeps live and does not own
+    /// (ascending): their new velocity at an internal tick is their
+    /// script's chord from their position there, which this rank computes
+    /// itself with the owner's bits, so it is neither sent nor received.
+    /// (In `send` and `recv` they would go from the rod's owner to every
+    /// rank at every internal tick: on the 50k twister over 32 ranks, 60
+    /// MB a window from one rank.)
+    pub scripted: Vec<u32>,
 }
 
 /// A peer rank and slots (global numbers) that travel to or from it.
@@ -361,6 +372,7 @@ impl RankShare {
             reader_start,
             reader_ranks,
             slots,
+            scripted: world.script_of.iter().map(Option::is_some).collect(),
         }
     }
 
@@ -374,7 +386,8 @@ impl RankShare {
     /// `island_reads` (vertex, the rank its island runs on): this rank keeps
     /// current those it owns or reads, receives the new velocities of those
     /// it reads off their owner, and sends its own to the ranks that read
-    /// them.
+    /// them; a scripted vertex's travel with neither
+    /// ([`PassShare::scripted`]).
     pub fn pass(&self, island_reads: impl IntoIterator<Item = (u32, u32)>) -> PassShare {
         let me = self.rank as u32;
         let mut live = self.read_here.clone();
@@ -382,17 +395,22 @@ impl RankShare {
         for (i, r) in island_reads {
             if r == me {
                 live[i as usize] = true;
-            } else if self.owns(i as usize) {
+            } else if self.owns(i as usize) && !self.scripted[i as usize] {
                 send[r as usize].push(i);
             }
         }
         let mut recv = vec![Vec::new(); self.ranks];
+        let mut scripted = Vec::new();
         for (i, l) in live.iter_mut().enumerate() {
             if self.owns(i) {
                 *l = true;
-                for &r in self.readers(i) {
-                    send[r as usize].push(i as u32);
+                if !self.scripted[i] {
+                    for &r in self.readers(i) {
+                        send[r as usize].push(i as u32);
+                    }
                 }
+            } else if *l && self.scripted[i] {
+                scripted.push(i as u32);
             } else if *l {
                 recv[self.owner[i] as usize].push(i as u32);
             }
@@ -401,14 +419,19 @@ impl RankShare {
             list.sort_unstable();
             list.dedup();
         }
-        PassShare { live, send, recv }
+        PassShare {
+            live,
+            send,
+            recv,
+            scripted,
+        }
     }
 
     /// Vertex `i` is kept current on rank `rank` from now on in the pass
     /// `pass` (over ranks, a unit holding it moved there): there it is
     /// live and received off its owner at the internal ticks, and its owner
-    /// sends it there. Every rank calls this alike. Returns whether it
-    /// became live here.
+    /// sends it there (a scripted vertex's computed there instead). Every
+    /// rank calls this alike. Returns whether it became live here.
     pub fn keep_live(&self, pass: &mut PassShare, i: usize, rank: u32) -> bool {
         let owner = self.owner[i];
         let me = self.rank as u32;
@@ -420,15 +443,20 @@ impl RankShare {
                 list.insert(at, i as u32);
             }
         };
+        let scripted = self.scripted[i];
         if rank == me {
             if pass.live[i] {
                 return false;
             }
             pass.live[i] = true;
-            add(&mut pass.recv[owner as usize]);
+            add(if scripted {
+                &mut pass.scripted
+            } else {
+                &mut pass.recv[owner as usize]
+            });
             return true;
         }
-        if owner == me {
+        if owner == me && !scripted {
             add(&mut pass.send[rank as usize]);
         }
         false

@@ -192,6 +192,13 @@ impl<E: Executor> Engine<E> {
                     (bad, changed),
                     &below,
                 )?;
+                // The scripted vertices kept current here and owned
+                // elsewhere: the chord from their position, as their owner
+                // computes it (a script ignores the impulse).
+                for &i in &ws.pass_share.scripted {
+                    let i = i as usize;
+                    ws.v_new[i] = new_velocity(w, i, ws.xt[i], DVec3::ZERO, tsec, h);
+                }
                 // Every vertex that changes velocity gets a breakpoint, but
                 // none at the window start, where each has one already.
                 let at_start = t == self.traj.start();
