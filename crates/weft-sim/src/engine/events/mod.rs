@@ -771,9 +771,6 @@ impl<E: Executor> Engine<E> {
             let candidates: Vec<usize> = (0..active.len())
                 .filter(|&a| mine(pack_of[a]) && may_be_far(w, &active[a].0))
                 .collect();
-            let listed: Vec<(StencilKey, u32, u32)> = (candidates.iter())
-                .map(|&a| (active[a].0, active[a].1, pack_of[a]))
-                .collect();
             let pass = (t0, t0 + h_el, t1);
             // (spread: each candidate's certificate end, when far)
             let mut ends: Vec<Option<Tick>> = Vec::new();
@@ -781,14 +778,19 @@ impl<E: Executor> Engine<E> {
                 Some(share) if spread => {
                     // (a share each, all-gathered: the units, and so the
                     // far stencils each rank watches, follow from all)
-                    let keys: Vec<StencilKey> = listed.iter().map(|c| c.0).collect();
+                    let keys: Vec<StencilKey> = candidates.iter().map(|&a| active[a].0).collect();
                     ends = far_at_start_shared(&self.exec, w, share, &keys, pass, &mut checked)?;
                     (
                         FarSet::default(),
                         ends.iter().map(Option::is_some).collect(),
                     )
                 }
-                _ => FarSet::new(&self.exec, w, &listed, &mine, pass, &mut checked),
+                _ => {
+                    let listed: Vec<(StencilKey, u32, u32)> = (candidates.iter())
+                        .map(|&a| (active[a].0, active[a].1, pack_of[a]))
+                        .collect();
+                    FarSet::new(&self.exec, w, &listed, &mine, pass, &mut checked)
+                }
             };
             let mut near = vec![true; active.len()];
             for (&a, &f) in candidates.iter().zip(&is_far) {
@@ -813,10 +815,18 @@ impl<E: Executor> Engine<E> {
             let (far, spread) = match self.share.as_ref().filter(|_| spread) {
                 None => (far, None),
                 Some(share) => {
-                    let (far_all, until): (Vec<(StencilKey, u32)>, Vec<Tick>) =
-                        (candidates.iter().zip(&ends))
-                            .filter_map(|(&a, end)| end.map(|until| (active[a], until)))
-                            .unzip();
+                    // (made to their length: every rank keeps `far_all`
+                    // through the pass, and grown by doubling it was up to
+                    // twice that, where a rank's memory peaks)
+                    let count = ends.iter().flatten().count();
+                    let mut far_all = Vec::with_capacity(count);
+                    let mut until = Vec::with_capacity(count);
+                    for (&a, end) in candidates.iter().zip(std::mem::take(&mut ends)) {
+                        if let Some(end) = end {
+                            far_all.push(active[a]);
+                            until.push(end);
+                        }
+                    }
                     let (far, spread) = spread_units(w, share, &specs, far_all, &until, pass);
                     reads.extend(spread.reads(&specs, active, w).filter(concerns_me));
                     (far, Some(spread))
