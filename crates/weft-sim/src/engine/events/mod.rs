@@ -456,8 +456,10 @@ impl Spread {
     /// Every vertex read over the pass by a rank other than its owner's
     /// partitions, with the rank (`u32::MAX`: every rank): the units'
     /// stencils' vertices on the unit's rank, the far stencils' on their
-    /// watcher, and every kinematic vertex of an active stencil everywhere
-    /// (a merged unit may come to read any).
+    /// watcher, and every kinematic vertex of an active stencil everywhere,
+    /// once (a merged unit may come to read any; listed once per stencil,
+    /// they were read once per stencil and rank by every rank at every
+    /// pass start).
     fn reads<'a>(
         &'a self,
         specs: &'a [UnitSpec],
@@ -468,8 +470,12 @@ impl Spread {
             .flat_map(|(spec, &r)| spec.1.iter().flat_map(move |m| m.0.v.map(|i| (i, r))));
         let far =
             (self.far_all.iter().zip(&self.watcher)).flat_map(|(f, &r)| f.0.v.map(|i| (i, r)));
-        let kinematic = (active.iter().flat_map(|a| a.0.v))
-            .filter(|&i| w.inv_mass[i as usize] == 0.0)
+        let mut kinematic = vec![false; w.num_vertices()];
+        for i in active.iter().flat_map(|a| a.0.v) {
+            kinematic[i as usize] |= w.inv_mass[i as usize] == 0.0;
+        }
+        let kinematic = (0..kinematic.len() as u32)
+            .filter(move |&i| kinematic[i as usize])
             .map(|i| (i, u32::MAX));
         units.chain(far).chain(kinematic)
     }
@@ -921,12 +927,14 @@ impl<E: Executor> Engine<E> {
             }
         });
         if let Some(share) = &self.share {
+            // A read by every rank: of a scripted vertex, which no rank
+            // sends (`PassShare::scripted`), only this rank's matters.
             let ranks = share.ranks as u32;
             let every = |(i, r): (u32, u32)| {
-                let (from, to) = if r == u32::MAX {
-                    (0, ranks)
-                } else {
-                    (r, r + 1)
+                let (from, to) = match r {
+                    u32::MAX if share.scripted[i as usize] => (me, me + 1),
+                    u32::MAX => (0, ranks),
+                    r => (r, r + 1),
                 };
                 (from..to).map(move |r| (i, r))
             };
