@@ -386,8 +386,8 @@ impl RankShare {
     /// `island_reads` (vertex, the rank its island runs on): this rank keeps
     /// current those it owns or reads, receives the new velocities of those
     /// it reads off their owner, and sends its own to the ranks that read
-    /// them; a scripted vertex's travel with neither
-    /// ([`PassShare::scripted`]).
+    /// them; a scripted vertex's new velocity is computed where it is
+    /// kept current, never sent ([`PassShare::scripted`]).
     pub fn pass(&self, island_reads: impl IntoIterator<Item = (u32, u32)>) -> PassShare {
         let me = self.rank as u32;
         let mut live = self.read_here.clone();
