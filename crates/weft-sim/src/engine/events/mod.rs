@@ -456,28 +456,22 @@ impl Spread {
     /// Every vertex read over the pass by a rank other than its owner's
     /// partitions, with the rank (`u32::MAX`: every rank): the units'
     /// stencils' vertices on the unit's rank, the far stencils' on their
-    /// watcher, and every kinematic vertex of an active stencil everywhere,
-    /// once (a merged unit may come to read any; listed once per stencil,
-    /// they were read once per stencil and rank by every rank at every
-    /// pass start).
+    /// watcher, and the kinematic vertices of the active stencils
+    /// (`kinematic`, each once) everywhere (a merged unit may come to read
+    /// any; listed once per stencil, they were read once per stencil and
+    /// rank by every rank at every pass start).
     fn reads<'a>(
         &'a self,
         specs: &'a [UnitSpec],
-        active: &'a [(StencilKey, u32)],
-        w: &'a World,
+        kinematic: &'a [u32],
     ) -> impl Iterator<Item = (u32, u32)> + 'a {
         let units = (specs.iter().zip(&self.rank_of))
             .flat_map(|(spec, &r)| spec.1.iter().flat_map(move |m| m.0.v.map(|i| (i, r))));
         let far =
             (self.far_all.iter().zip(&self.watcher)).flat_map(|(f, &r)| f.0.v.map(|i| (i, r)));
-        let mut kinematic = vec![false; w.num_vertices()];
-        for i in active.iter().flat_map(|a| a.0.v) {
-            kinematic[i as usize] |= w.inv_mass[i as usize] == 0.0;
-        }
-        let kinematic = (0..kinematic.len() as u32)
-            .filter(move |&i| kinematic[i as usize])
-            .map(|i| (i, u32::MAX));
-        units.chain(far).chain(kinematic)
+        units
+            .chain(far)
+            .chain(kinematic.iter().map(|&i| (i, u32::MAX)))
     }
 }
 
@@ -755,6 +749,7 @@ impl<E: Executor> Engine<E> {
         // by its stencils) and each far stencil is watched by one rank
         // (`spread_units`).
         let mine = |k: u32| spread || pack_rank[k as usize] == me;
+        let kinematic = units::kinematic_of(w, active.iter().map(|a| &a.0));
         let h_el = w.lattice.internal_step();
         let mut checked = Checked::default();
         // Over ranks: every vertex a unit's stencils read, with the unit's
@@ -834,7 +829,7 @@ impl<E: Executor> Engine<E> {
                         }
                     }
                     let (far, spread) = spread_units(w, share, &specs, far_all, &until, pass);
-                    reads.extend(spread.reads(&specs, active, w).filter(concerns_me));
+                    reads.extend(spread.reads(&specs, &kinematic).filter(concerns_me));
                     (far, Some(spread))
                 }
             };
@@ -867,12 +862,13 @@ impl<E: Executor> Engine<E> {
         // memory-bound loop) beside the units' states (a giant island's
         // takes one thread).
         let (traj, exec) = (&mut self.traj, &self.exec);
-        let mut args = Some((specs, far, checked, through, rank_of));
+        let mut args = Some((specs, kinematic, far, checked, through, rank_of));
         let mut units = None;
         exec.join(&mut || traj.begin(t0, &w.x), &mut || {
-            let (specs, far, checked, through, rank_of) = args.take().expect("built once");
+            let (specs, kinematic, far, checked, through, rank_of) =
+                args.take().expect("built once");
             units = Some(Units::new(
-                exec, w, specs, far, checked, t0, through, rank_of,
+                exec, w, specs, kinematic, far, checked, t0, through, rank_of,
             ));
         });
         let ws = &mut self.ws;

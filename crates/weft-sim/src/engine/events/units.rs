@@ -167,6 +167,23 @@ pub(super) type UnitSpec = (Vec<u32>, Vec<(StencilKey, u32)>);
 /// A unit's island where it runs here (see [`Units::islands`]).
 type UnitSlot = Mutex<Option<Box<Island>>>;
 
+/// Every kinematic vertex of the stencils `active`, ascending, once: what a
+/// pass's units may come to read of them (a merged unit any). (Marked per
+/// vertex: listed four per stencil before a dedup, they were a megabyte at
+/// the pass start on the 50k twister, where a rank's memory peaks.)
+pub(super) fn kinematic_of<'a>(
+    w: &World,
+    active: impl Iterator<Item = &'a StencilKey>,
+) -> Vec<u32> {
+    let mut read = vec![false; w.num_vertices()];
+    for i in active.flat_map(|k| k.v) {
+        read[i as usize] |= w.inv_mass[i as usize] == 0.0;
+    }
+    (0..read.len() as u32)
+        .filter(|&i| read[i as usize])
+        .collect()
+}
+
 /// The island in a unit's slot: the caller runs or reads a unit that runs
 /// here.
 fn running(slot: &mut Option<Box<Island>>) -> &mut Island {
@@ -176,11 +193,13 @@ fn running(slot: &mut Option<Box<Island>>) -> &mut Island {
 impl Units {
     /// The units `specs`, built from the world's state at the pass start
     /// `t0` (on the executor), and the far stencils watched beside them
-    /// (`checked`: what choosing them evaluated).
+    /// (`checked`: what choosing them evaluated); `kinematic`: the
+    /// kinematic vertices of the active stencils ([`kinematic_of`]).
     pub(super) fn new<E: Executor>(
         exec: &E,
         w: &World,
         specs: Vec<UnitSpec>,
+        kinematic: Vec<u32>,
         far: FarSet,
         checked: Checked,
         t0: Tick,
@@ -222,15 +241,8 @@ impl Units {
         }
         let cost = specs.iter().map(|s| s.1.len() as f64).collect();
         let n_units = specs.len();
-        // Every kinematic vertex of an active stencil, ascending (a unit
-        // built later by a promotion reads only these). (Marked per vertex:
-        // listed four per stencil before a dedup, they were a megabyte at
-        // the pass start on the 50k twister, where a rank's memory peaks.)
-        let mut read = vec![false; n];
-        for i in w.layers.stencils.keys().flat_map(|k| k.v) {
-            read[i as usize] |= w.inv_mass[i as usize] == 0.0;
-        }
-        let kinematic: Vec<u32> = (0..n as u32).filter(|&i| read[i as usize]).collect();
+        // (a unit built later by a promotion reads only these kinematic
+        // vertices)
         let kinematic = SharedCaps::new(kinematic, |i| w.v[i as usize]);
         // The units another rank runs keep their specs here; the others
         // are built on the executor.
