@@ -33,7 +33,9 @@
 //! are the same everywhere. A rank that reads a vertex it
 //! does not hold (a narrow-phase or retirement task with a vertex of another
 //! rank's partition) first receives its polyline from the holder into a
-//! per-window cache ([`Trajectories::fetched`]), exactly, bit for bit.
+//! per-window cache ([`Trajectories::fetched`]), exactly, bit for bit; a
+//! scripted vertex's polyline, which follows from its window start and its
+//! script alone, the reader computes instead ([`Trajectories::computed`]).
 //! The breakpoint storage and the staged columns hold only the vertices
 //! held here: a rank of `R` keeps about `1/R` of them.
 
@@ -702,9 +704,38 @@ impl Trajectories {
             .chunks_exact(3)
             .map(|c| DVec3::new(c[0], c[1], c[2]))
             .collect();
+        self.keep(i, times, points);
+        4 * n
+    }
+
+    /// Keeps vertex `i`'s polyline, held by another rank, as this rank
+    /// computed it (a scripted vertex's, replayed from the window start),
+    /// as [`Trajectories::fetched`] keeps a received one.
+    ///
+    /// # Panics
+    /// If it does not end where every rank's tally of the vertex says (its
+    /// count and last time): a replay that strayed from the pass, a bug.
+    pub fn computed(&mut self, i: usize, times: Vec<f64>, points: Vec<DVec3>) {
+        assert!(
+            times.len() == points.len()
+                && times.len() == self.count[i] as usize
+                && times.last() == Some(&self.last[i]),
+            "rank {}: vertex {i}'s computed polyline ({} breakpoints, the last at {:?}) is not \
+             the one its tally gives ({} breakpoints, the last at {})",
+            self.me,
+            times.len(),
+            times.last(),
+            self.count[i],
+            self.last[i]
+        );
+        self.keep(i, times, points);
+    }
+
+    /// Caches vertex `i`'s polyline from elsewhere, with its block bounds
+    /// built as its holder built them.
+    fn keep(&mut self, i: usize, times: Vec<f64>, points: Vec<DVec3>) {
         let bounds = TrajectoryBounds::from_points(&times, &points);
         self.cache.insert(i as u32, (times, points, bounds));
-        4 * n
     }
 
     /// Bytes of block bounds held (their capacity).
@@ -979,5 +1010,27 @@ mod tests {
         t.hold_only(vec![0, 1], 0);
         t.begin(0, &[DVec3::ZERO, DVec3::ONE]);
         let _ = t.of(1);
+    }
+
+    /// A polyline computed here is kept as a fetched one, and only when it
+    /// ends where the vertex's tally says.
+    #[test]
+    fn a_computed_polyline_is_read_as_fetched_and_must_match_the_tally() {
+        let mut t = Trajectories::new(2, usize::MAX);
+        t.hold_only(vec![0, 1], 0);
+        t.begin(0, &[DVec3::ZERO, DVec3::ONE]);
+        t.set_tally(1, (2, 16.0));
+        t.computed(1, vec![0.0, 16.0], vec![DVec3::ONE, DVec3::X]);
+        assert_eq!(t.of(1).times, [0.0, 16.0]);
+        assert_eq!(t.of(1).points, [DVec3::ONE, DVec3::X]);
+        let caught = |times: Vec<f64>, points: Vec<DVec3>| {
+            let mut t = t.clone();
+            let run = std::panic::AssertUnwindSafe(move || t.computed(1, times, points));
+            std::panic::catch_unwind(run).is_err()
+        };
+        // One breakpoint short, another last time, a point missing.
+        assert!(caught(vec![16.0], vec![DVec3::X]));
+        assert!(caught(vec![0.0, 15.0], vec![DVec3::ONE, DVec3::X]));
+        assert!(caught(vec![0.0, 16.0], vec![DVec3::ONE]));
     }
 }

@@ -550,7 +550,9 @@ impl<E: Executor> Engine<E> {
             let clock = StageClock::start(&self.exec);
             let count = candidates.as_ref().map_or(0, |c| c.len() as u64);
             let narrow = trace::stage("narrow", Some(("candidates", count)));
-            let found = candidates.and_then(|c| Ok((self.narrow_phase(&c)?, c)));
+            // (a pass cut short fetches its scripted vertices' polylines)
+            let replay = counts.truncated.is_none().then_some((&snap, (t0, t1)));
+            let found = candidates.and_then(|c| Ok((self.narrow_phase(&c, replay)?, c)));
             let ((reported, tested_on), candidates) = match found {
                 Ok(found) => found,
                 Err(e) => {

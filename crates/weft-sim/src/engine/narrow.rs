@@ -6,10 +6,16 @@ use std::time::Instant;
 use weft_core::StencilKey;
 use weft_geom::ccd::{proximity, CcdStats};
 
-use super::Engine;
+use super::{events, Engine, Snapshot};
 use crate::balance::{locality_aware, CollisionTasks};
+use crate::clock::Tick;
 use crate::executor::{CommError, Executor};
 use crate::trace;
+
+/// A pass that ran to the window end: the window's start state and the
+/// pass's first and end ticks, from which each scripted vertex's polyline
+/// is replayed.
+pub(super) type Replay<'a> = (&'a Snapshot, (Tick, Tick));
 
 impl<E: Executor> Engine<E> {
     /// Over ranks: every rank gets, from the ranks that hold them, the
@@ -20,9 +26,17 @@ impl<E: Executor> Engine<E> {
     /// listing every rank's reads was memory and work each one repeated).
     /// Every rank works out the same traffic from the same placement, so
     /// nothing is requested: holders send, readers receive, point to point,
-    /// exact bits (`Trajectories::fetched`). The polylines stay cached for
-    /// the window.
-    pub(super) fn fetch_trajectories(&mut self, mut reads: Vec<Vec<u32>>) -> Result<(), CommError> {
+    /// exact bits (`Trajectories::fetched`). The scripted vertices this
+    /// rank's tasks read and another rank holds, `replayed`, are computed
+    /// here from the window start `replay` instead, while the words travel
+    /// (`events::scripted_polyline`; no rank lists them in `reads`). The
+    /// polylines stay cached until the pass is decided.
+    pub(super) fn fetch_trajectories(
+        &mut self,
+        mut reads: Vec<Vec<u32>>,
+        replayed: &[u32],
+        replay: Option<Replay<'_>>,
+    ) -> Result<(), CommError> {
         let me = self.exec.rank();
         let holders = self.traj.holders();
         // (holder, reader) → vertices, ascending; only pairs with this rank.
@@ -60,12 +74,26 @@ impl<E: Executor> Engine<E> {
                 )
             })
             .collect();
-        let received = self.exec.exchange_words(sends, &lens, &mut || {})?;
+        let (exec, w) = (&self.exec, &self.world);
+        let mut computed = Vec::new();
+        let received = exec.exchange_words(sends, &lens, &mut || {
+            let Some((start, pass)) = replay else {
+                return;
+            };
+            computed = exec.map(replayed.len(), &|k| {
+                let i = replayed[k] as usize;
+                let at_start = (start.x[i], start.v[i], start.tau[i]);
+                events::scripted_polyline(w, i, at_start, pass)
+            });
+        })?;
         for ((_, vertices), words) in recvs.iter().zip(received) {
             let mut at = 0;
             for &v in vertices {
                 at += self.traj.fetched(v as usize, &words[at..]);
             }
+        }
+        for (&i, (times, points)) in replayed.iter().zip(computed) {
+            self.traj.computed(i as usize, times, points);
         }
         Ok(())
     }
@@ -83,9 +111,14 @@ impl<E: Executor> Engine<E> {
     /// Over ranks, the tasks are placed by the paper's Algorithm 2
     /// ([`crate::balance::locality_aware`]: home rank first while under the
     /// average load) and every rank gets every answer.
+    ///
+    /// `replay`: the window start and the pass's ticks when the pass ran to
+    /// the window end; the scripted vertices' polylines are then computed
+    /// where they are read ([`Engine::fetch_trajectories`]).
     pub(super) fn narrow_phase(
         &mut self,
         candidates: &[StencilKey],
+        replay: Option<Replay<'_>>,
     ) -> Result<(Vec<StencilKey>, Vec<u32>), CommError> {
         const TASK: f64 = 64.0;
         let costs = &self.narrow_costs;
@@ -111,8 +144,13 @@ impl<E: Executor> Engine<E> {
             // that listed it; the ranks come in order): four reads per
             // candidate with their repeats were 4.2 MB at a rank's memory
             // peak (the fetch) on the 50k twister over 32 ranks.
+            // A scripted vertex travels to no rank when the pass can be
+            // replayed: this rank computes those its tasks read.
             let (me, holders) = (self.exec.rank(), self.traj.holders());
+            let w = &self.world;
+            let travels = |v: u32| replay.is_none() || !events::replayable(w, v as usize);
             let mut reads = vec![Vec::new(); ranks];
+            let mut replayed = Vec::new();
             let mut listed = vec![u32::MAX; holders.len()];
             for (r, mine) in assigned.iter().enumerate() {
                 for &n in mine {
@@ -120,10 +158,14 @@ impl<E: Executor> Engine<E> {
                     let task = &tasks.tasks[order[n]];
                     for &c in &tasks.order[task.range.clone()] {
                         for &v in &candidates[c as usize].v {
-                            let here = r == me || holders[v as usize] as usize == me;
-                            if here && listed[v as usize] != r as u32 {
+                            let held_here = holders[v as usize] as usize == me;
+                            if (r == me || held_here) && listed[v as usize] != r as u32 {
                                 listed[v as usize] = r as u32;
-                                reads[r].push(v);
+                                if travels(v) {
+                                    reads[r].push(v);
+                                } else if !held_here {
+                                    replayed.push(v);
+                                }
                             }
                         }
                         tested_on[c as usize] = r as u32;
@@ -131,7 +173,7 @@ impl<E: Executor> Engine<E> {
                 }
             }
             drop(listed);
-            self.fetch_trajectories(reads)?;
+            self.fetch_trajectories(reads, &replayed, replay)?;
         }
         let w = &self.world;
         let depths = if ranks > 1 {

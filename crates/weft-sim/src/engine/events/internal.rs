@@ -441,7 +441,14 @@ fn blows_up(w: &World, i: usize, xt: &[DVec3], v_new: DVec3) -> bool {
 /// received the impulse `impulse` (internal forces, then normal and clamped
 /// friction kicks); `x` is its position at the batch. A scripted vertex
 /// follows the chord of its script.
-fn new_velocity(w: &World, i: usize, x: DVec3, impulse: DVec3, tsec: f64, h: f64) -> DVec3 {
+pub(super) fn new_velocity(
+    w: &World,
+    i: usize,
+    x: DVec3,
+    impulse: DVec3,
+    tsec: f64,
+    h: f64,
+) -> DVec3 {
     match w.script_of[i] {
         Some((s, k)) => w.scripts[s as usize].chord_velocity(k as usize, x, tsec, h),
         None => w.v[i] + impulse * w.inv_mass[i],

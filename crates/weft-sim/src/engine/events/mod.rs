@@ -24,6 +24,7 @@
 mod far;
 mod internal;
 mod island;
+mod scripted;
 mod units;
 
 use std::time::Instant;
@@ -42,6 +43,8 @@ use crate::world::World;
 use far::{may_be_far, Checked, FarSet};
 use island::{Pass, SegmentOutput};
 use units::{FarCounts, Spread, UnitSpec, Units};
+
+pub(super) use scripted::{replayable, scripted_polyline};
 
 /// Tasks per thread that the islands of a segment are dealt to on one
 /// memory (on the twister 50k with 2 threads, the island stage reached 90 %
