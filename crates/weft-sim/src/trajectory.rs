@@ -676,6 +676,13 @@ impl Trajectories {
         self.cache = Default::default();
     }
 
+    /// Keeps of the polylines fetched (or computed) here only those of the
+    /// vertices `keep` names; the others are dropped, memory included.
+    pub fn keep_fetched(&mut self, keep: impl Fn(usize) -> bool) {
+        self.cache.retain(|&i, _| keep(i as usize));
+        self.cache.shrink_to_fit();
+    }
+
     /// Breakpoints of vertex `i` this window (known on every rank).
     pub fn count(&self, i: usize) -> usize {
         self.count[i] as usize
@@ -1015,7 +1022,7 @@ mod tests {
     /// A polyline computed here is kept as a fetched one, and only when it
     /// ends where the vertex's tally says.
     #[test]
-    fn a_computed_polyline_is_read_as_fetched_and_must_match_the_tally() {
+    fn a_computed_polyline_is_read_as_fetched_and_must_match_the_tally_until_dropped() {
         let mut t = Trajectories::new(2, usize::MAX);
         t.hold_only(vec![0, 1], 0);
         t.begin(0, &[DVec3::ZERO, DVec3::ONE]);
@@ -1032,5 +1039,10 @@ mod tests {
         assert!(caught(vec![16.0], vec![DVec3::X]));
         assert!(caught(vec![0.0, 15.0], vec![DVec3::ONE, DVec3::X]));
         assert!(caught(vec![0.0, 16.0], vec![DVec3::ONE]));
+        // Kept while named, dropped when not (the held ones stay readable).
+        t.keep_fetched(|i| i == 1);
+        assert!(t.readable(1));
+        t.keep_fetched(|i| i != 1);
+        assert!(!t.readable(1) && t.readable(0));
     }
 }

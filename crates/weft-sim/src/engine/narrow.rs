@@ -242,6 +242,25 @@ impl<E: Executor> Engine<E> {
         }
         costs.record(measured);
         reported.sort_unstable();
+        if ranks > 1 && reported.is_empty() {
+            // The commit certifies again only the active candidates, each
+            // where it was tested (`commit.rs`): of the polylines fetched
+            // here it reads only theirs. The others go before it, where a
+            // rank's memory peaks (the 50k twister over 32 ranks). A pass
+            // with a report rolls back and forgets them all.
+            let me = self.exec.rank() as u32;
+            let mut kept = vec![false; self.traj.len()];
+            for n in (0..order.len()).filter(|&n| owner[n] == me) {
+                for &c in &tasks.order[tasks.tasks[order[n]].range.clone()] {
+                    if depths[c as usize] > 0 {
+                        for &v in &candidates[c as usize].v {
+                            kept[v as usize] = true;
+                        }
+                    }
+                }
+            }
+            self.traj.keep_fetched(|i| kept[i]);
+        }
         Ok((reported, tested_on))
     }
 }
