@@ -164,33 +164,41 @@ pub(crate) fn read_heads(
     let mut incoming = vec![0; blocks.len()];
     let mut too_large = None;
     for (j, block) in blocks.iter().enumerate() {
-        let w = words(block);
-        if block.len() % 8 != 0 || w.len() < 2 {
+        // (the block's words read in place: a vector of them per rank and
+        // all-to-all was most of this rank's allocations at 32 ranks)
+        let len = block.len() / 8;
+        let word =
+            |k: usize| u64::from_le_bytes(block[8 * k..8 * k + 8].try_into().expect("8 bytes"));
+        if block.len() % 8 != 0 || len < 2 {
             return Err(fail(format!(
                 "rank {j} sent a head block of {} bytes",
                 block.len()
             )));
         }
-        if w[0] != 0 && too_large.is_none() {
+        if word(0) != 0 && too_large.is_none() {
             too_large = Some(j);
         }
-        let n = w[1] as usize;
+        let n = word(1) as usize;
         if n != words_in_head {
             return Err(fail(format!(
                 "rank {j} sent a head of {n} words, {words_in_head} expected"
             )));
         }
-        let pairs = w.get(2 + n).copied().unwrap_or(u64::MAX) as usize;
-        if w.len().checked_sub(3 + n) != pairs.checked_mul(2) {
+        if len < 3 + n {
             return Err(fail(format!(
-                "rank {j} sent a head block of {} words for {pairs} parts",
-                w.len()
+                "rank {j} sent a head block of {len} words, without its count of parts"
             )));
         }
-        heads.push(w[2..2 + n].to_vec());
-        for pair in w[3 + n..].chunks_exact(2) {
-            if pair[0] == rank as u64 {
-                incoming[j] = pair[1] as usize;
+        let pairs = word(2 + n) as usize;
+        if Some(len - 3 - n) != pairs.checked_mul(2) {
+            return Err(fail(format!(
+                "rank {j} sent a head block of {len} words for {pairs} parts"
+            )));
+        }
+        heads.push((2..2 + n).map(word).collect());
+        for p in 0..pairs {
+            if word(3 + n + 2 * p) == rank as u64 {
+                incoming[j] = word(4 + n + 2 * p) as usize;
             }
         }
     }
@@ -315,6 +323,14 @@ mod tests {
         let err = read_heads(0, 2, &cut).unwrap_err();
         assert!(
             err.to_string().contains("rank 2 sent a head block"),
+            "{err}"
+        );
+        // Cut to its head, without the count of parts (it panicked once).
+        let mut headless = blocks;
+        headless[1].truncate(8 * 4);
+        let err = read_heads(0, 2, &headless).unwrap_err();
+        assert!(
+            err.to_string().contains("without its count of parts"),
             "{err}"
         );
     }
