@@ -33,9 +33,10 @@
 //! are the same everywhere. A rank that reads a vertex it
 //! does not hold (a narrow-phase or retirement task with a vertex of another
 //! rank's partition) first receives its polyline from the holder into a
-//! per-window cache ([`Trajectories::fetched`]), exactly, bit for bit; a
-//! scripted vertex's polyline, which follows from its window start and its
-//! script alone, the reader computes instead ([`Trajectories::computed`]).
+//! per-pass cache ([`Trajectories::fetched`]), exactly, bit for bit; after a
+//! pass that ran to the window end, a scripted vertex's polyline, which
+//! follows from its window start and its script alone, the reader computes
+//! instead ([`Trajectories::computed`]).
 //! The breakpoint storage and the staged columns hold only the vertices
 //! held here: a rank of `R` keeps about `1/R` of them.
 
@@ -721,17 +722,23 @@ impl Trajectories {
     ///
     /// # Panics
     /// If it does not end where every rank's tally of the vertex says (its
-    /// count and last time): a replay that strayed from the pass, a bug.
-    pub fn computed(&mut self, i: usize, times: Vec<f64>, points: Vec<DVec3>) {
+    /// count and last time) or at `end`, the vertex's position at the pass
+    /// end that every rank holds (bit for bit: each breakpoint's position
+    /// is drifted from the one before, so a replay that strayed anywhere
+    /// ends elsewhere): a bug.
+    pub fn computed(&mut self, i: usize, times: Vec<f64>, points: Vec<DVec3>, end: DVec3) {
+        let bits = |p: &DVec3| p.to_array().map(f64::to_bits);
         assert!(
             times.len() == points.len()
                 && times.len() == self.count[i] as usize
-                && times.last() == Some(&self.last[i]),
-            "rank {}: vertex {i}'s computed polyline ({} breakpoints, the last at {:?}) is not \
-             the one its tally gives ({} breakpoints, the last at {})",
+                && times.last() == Some(&self.last[i])
+                && points.last().map(bits) == Some(bits(&end)),
+            "rank {}: vertex {i}'s computed polyline ({} breakpoints, the last at {:?}, at {:?}) \
+             is not the one its tally gives ({} breakpoints, the last at {}, at {end:?})",
             self.me,
             times.len(),
             times.last(),
+            points.last(),
             self.count[i],
             self.last[i]
         );
@@ -1027,18 +1034,27 @@ mod tests {
         t.hold_only(vec![0, 1], 0);
         t.begin(0, &[DVec3::ZERO, DVec3::ONE]);
         t.set_tally(1, (2, 16.0));
-        t.computed(1, vec![0.0, 16.0], vec![DVec3::ONE, DVec3::X]);
+        t.computed(1, vec![0.0, 16.0], vec![DVec3::ONE, DVec3::X], DVec3::X);
         assert_eq!(t.of(1).times, [0.0, 16.0]);
         assert_eq!(t.of(1).points, [DVec3::ONE, DVec3::X]);
         let caught = |times: Vec<f64>, points: Vec<DVec3>| {
             let mut t = t.clone();
-            let run = std::panic::AssertUnwindSafe(move || t.computed(1, times, points));
+            let run = std::panic::AssertUnwindSafe(move || t.computed(1, times, points, DVec3::X));
             std::panic::catch_unwind(run).is_err()
         };
         // One breakpoint short, another last time, a point missing.
         assert!(caught(vec![16.0], vec![DVec3::X]));
         assert!(caught(vec![0.0, 15.0], vec![DVec3::ONE, DVec3::X]));
         assert!(caught(vec![0.0, 16.0], vec![DVec3::ONE]));
+        // Ending elsewhere, or at a zero of the other sign.
+        assert!(caught(vec![0.0, 16.0], vec![DVec3::ONE, DVec3::Y]));
+        let mut t2 = t.clone();
+        t2.set_tally(0, (2, 16.0));
+        let signed = std::panic::AssertUnwindSafe(move || {
+            let points = vec![DVec3::ONE, DVec3::new(1.0, -0.0, 0.0)];
+            t2.computed(0, vec![0.0, 16.0], points, DVec3::X)
+        });
+        assert!(std::panic::catch_unwind(signed).is_err());
         // Kept while named, dropped when not (the held ones stay readable).
         t.keep_fetched(|i| i == 1);
         assert!(t.readable(1));

@@ -37,9 +37,10 @@ impl<E: Executor> Engine<E> {
         // (`deciding_ranks`; on one memory all on rank 0). Only the stencils
         // among the candidates are certified again, so only their polylines
         // are read: over ranks each is decided where the narrow phase
-        // tested it (`tested_on`), which holds them or fetched them for the
-        // window, so nothing travels, and the narrow phase's balance of the
-        // same certificates holds for them too.
+        // tested it (`tested_on`), which holds them, fetched or computed
+        // for the pass and kept for the commit (`Trajectories::keep_fetched`),
+        // so nothing travels, and the narrow phase's balance of the same
+        // certificates holds for them too.
         let ranks = self.exec.ranks();
         let holders = self.traj.holders();
         // Per entry, its index among the candidates (both in key order: one

@@ -29,8 +29,11 @@ impl<E: Executor> Engine<E> {
     /// exact bits (`Trajectories::fetched`). The scripted vertices this
     /// rank's tasks read and another rank holds, `replayed`, are computed
     /// here from the window start `replay` instead, while the words travel
-    /// (`events::scripted_polyline`; no rank lists them in `reads`). The
-    /// polylines stay cached until the pass is decided.
+    /// (`events::scripted_polyline`; no rank lists them in `reads`), each
+    /// checked against the tally and the end position every rank holds
+    /// (`Trajectories::computed`). The polylines stay cached until the
+    /// pass is decided, less those the commit will not read
+    /// (`Trajectories::keep_fetched`, at the end of the narrow phase).
     pub(super) fn fetch_trajectories(
         &mut self,
         mut reads: Vec<Vec<u32>>,
@@ -93,15 +96,17 @@ impl<E: Executor> Engine<E> {
             }
         }
         for (&i, (times, points)) in replayed.iter().zip(computed) {
-            self.traj.computed(i as usize, times, points);
+            let end = self.world.x[i as usize];
+            self.traj.computed(i as usize, times, points, end);
         }
         Ok(())
     }
 
     /// Stencils among `candidates` (sorted) that may come within
     /// `eta_(depth+1)`, in key order; and over ranks, per candidate, the
-    /// rank that tested it (it holds, or fetched for the window, the
-    /// polylines of the candidate's vertices; empty on one rank).
+    /// rank that tested it (it holds the polylines of the candidate's
+    /// vertices, fetched or computed for the pass, and keeps those of the
+    /// active candidates for the commit; empty on one rank).
     ///
     /// Candidates are grouped by partition pair and split into tasks whose
     /// cost is predicted from the previous pass ([`crate::balance`]); the

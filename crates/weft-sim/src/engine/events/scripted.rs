@@ -41,7 +41,8 @@ pub(in crate::engine) fn replayable(w: &World, i: usize) -> bool {
 /// The pass's steps for such a vertex, each mirrored here:
 /// * its first breakpoint, the position at the window start
 ///   (`Trajectories::begin`);
-/// * at each internal tick `b` in `[t0, t1)`: its position drifted to `b`,
+/// * at each internal tick `b` in `[t0, t1)` (none at tick 0, as in the
+///   pass, `tick_at_or_after`): its position drifted to `b`,
 ///   the chord velocity from there; if the velocity changes, the vertex
 ///   moves to `b` and stages a breakpoint (`apply_internal`), which at the
 ///   instant of the last one replaces its position (`push_breakpoint`);
