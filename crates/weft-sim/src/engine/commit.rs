@@ -29,7 +29,7 @@ impl<E: Executor> Engine<E> {
     ) -> Result<(u64, u64), CommError> {
         const TASK: usize = 64;
         // (the map's entries by reference: 16 bytes a stencil, where a copy
-        // took 40 at a rank's memory peak)
+        // took 28 at a rank's memory peak)
         let entries: Vec<(&StencilKey, &LayerState)> = self.world.layers.stencils.iter().collect();
         // Each stencil's new state depends on its own certificates only, so
         // the stencils are decided on the executor and applied in key order.
