@@ -78,7 +78,8 @@ pub fn build_world(spec: &WorldSpec) -> Result<World, SimError> {
 }
 
 /// [`build_world`] with the internal step estimated on `exec`'s threads
-/// (`World::build_on`: the same world on any number).
+/// and ranks (`World::build_on`: the same world on any number; collective
+/// over ranks).
 pub fn build_world_on<E: Executor>(spec: &WorldSpec, exec: &E) -> Result<World, SimError> {
     World::build_on(spec, &Metis, exec)
 }

@@ -388,3 +388,37 @@ fn rank_slots_fold_the_bits_of_the_world_slots() {
         }
     }
 }
+
+/// Every rank builds the world, and the internal step's two Lanczos
+/// estimates and their Gershgorin bound are assembled range by range, each
+/// rank its block of ranges on its threads, the blocks gathered: the same
+/// `omega_max`, damping rate and internal step, bit for bit, as one memory,
+/// on any number of ranks and threads, with the ranks' shares sent.
+#[test]
+fn the_step_estimate_spread_over_ranks_has_one_memorys_bits() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/crumple.toml");
+    let scene = load_scene(&path, &["size=300".into()]).unwrap();
+    let one = weft_par::build_world(&scene.world).unwrap();
+    assert!(one.damping_rate > 0.0, "a damped cloth");
+    let step = |w: &World| [w.omega_max, w.damping_rate, w.lattice.h_el()].map(f64::to_bits);
+    for (ranks, threads) in [(2, 1), (3, 2), (5, 1)] {
+        let built = ranks::in_process(
+            ranks,
+            |_| weft_par::Threads::new(threads).unwrap(),
+            |exec| {
+                let w = weft_par::build_world_on(&scene.world, &exec).unwrap();
+                (step(&w), weft_sim::Executor::traffic(&exec))
+            },
+        );
+        for (rank, (bits, traffic)) in built.iter().enumerate() {
+            assert_eq!(
+                *bits,
+                step(&one),
+                "rank {rank} of {ranks} × {threads} threads"
+            );
+            // An all-gather per assembly: two per Lanczos step of the
+            // frequency, one per step of the damping rate.
+            assert!(traffic.collectives > 20, "rank {rank}: {traffic:?}");
+        }
+    }
+}

@@ -26,7 +26,7 @@ use std::ops::Range;
 use glam::DVec3;
 use weft_core::{Topology, NONE};
 
-use crate::executor::{split_chunks, Executor};
+use crate::executor::{split_chunks, CommError, Executor};
 use crate::materials::{
     whole_below, ElasticModel, HingeElement, Material, MaterialError, StretchElement,
 };
@@ -804,24 +804,48 @@ impl InternalForces {
         }
     }
 
+    /// Every element, read in global key order where it is stored (the
+    /// sums of [`InternalForces::key_ordered`]'s copy, without the copy:
+    /// at the start of a run over ranks, before a rank keeps its part,
+    /// that copy was a tenth of its heap), with the material table
+    /// `materials` (this store's, or one with some dampings left out).
+    fn model_in_key_order<'a>(&'a self, materials: &'a [Material]) -> ElasticModel<'a> {
+        self.assert_whole("the elements in key order");
+        ElasticModel {
+            stretch: &self.stretch,
+            stretch_material: &self.stretch_material,
+            hinges: &self.hinges,
+            hinge_material: &self.hinge_material,
+            materials,
+            order: Some((&self.stretch_by_key, &self.hinge_by_key)),
+        }
+    }
+
     /// Largest angular frequency of the assembled rest system, assembled on
-    /// `exec`'s threads (the same bits on any number).
-    pub fn max_frequency<E: Executor>(&self, exec: &E, rest: &[DVec3], mass: &[f64]) -> f64 {
-        self.key_ordered()
-            .model()
-            .max_frequency_on(exec, rest, mass)
+    /// `exec`'s ranks and threads (the same bits on any number).
+    /// **Collective over ranks.**
+    pub fn max_frequency<E: Executor>(
+        &self,
+        exec: &E,
+        rest: &[DVec3],
+        mass: &[f64],
+    ) -> Result<f64, CommError> {
+        (self.model_in_key_order(&self.materials)).max_frequency_on(exec, rest, mass)
     }
 
     /// `gamma_max = λ_max(M⁻¹C)` (1/s) of the damping operator at the rest
     /// shape, 0 without damping: with `omega_max` it sets the explicit
     /// stability limit `h γ + h² ω² / 2 ≤ 2` ([`crate::materials::damping_step_limit`]).
-    pub fn max_damping_rate<E: Executor>(&self, exec: &E, rest: &[DVec3], mass: &[f64]) -> f64 {
+    pub fn max_damping_rate<E: Executor>(
+        &self,
+        exec: &E,
+        rest: &[DVec3],
+        mass: &[f64],
+    ) -> Result<f64, CommError> {
         if !self.damped {
-            return 0.0;
+            return Ok(0.0);
         }
-        self.key_ordered()
-            .model()
-            .max_damping_rate_on(exec, rest, mass)
+        (self.model_in_key_order(&self.materials)).max_damping_rate_on(exec, rest, mass)
     }
 
     /// The damping rate of material `m`'s elements alone, keeping only its
@@ -833,8 +857,8 @@ impl InternalForces {
     /// rate by exactly `s`.
     pub fn damping_rates_of(&self, m: usize, rest: &[DVec3], mass: &[f64]) -> [f64; 3] {
         let rate = |stretch: bool, bend: bool| {
-            let mut k = self.key_ordered();
-            for (j, material) in k.materials.iter_mut().enumerate() {
+            let mut materials = self.materials.clone();
+            for (j, material) in materials.iter_mut().enumerate() {
                 if j != m || !stretch {
                     material.stretch_damping = 0.0;
                 }
@@ -842,7 +866,7 @@ impl InternalForces {
                     material.bend_damping = 0.0;
                 }
             }
-            k.model().max_damping_rate(rest, mass)
+            (self.model_in_key_order(&materials)).max_damping_rate(rest, mass)
         };
         [rate(true, false), rate(false, true), rate(true, true)]
     }
@@ -1240,6 +1264,7 @@ impl KeyOrdered {
             hinges: &self.hinges,
             hinge_material: &self.hinge_material,
             materials: &self.materials,
+            order: None,
         }
     }
 }
@@ -1288,7 +1313,84 @@ fn cut_into_pieces(parts: &[Partition]) -> (Vec<Piece>, Vec<usize>, Vec<Range<us
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::executor::Serial;
     use weft_geom::shapes::grid;
+
+    /// A jittered 23 × 17 grid's elements over `n_parts` random partitions,
+    /// with a few kinematic vertices (no fold), a triangle that is no cloth
+    /// (no element) and a damped material: the rest positions, the inverse
+    /// masses and the elements.
+    fn grid_elements(
+        n_parts: usize,
+        next: &mut impl FnMut() -> f64,
+    ) -> (Vec<DVec3>, Vec<f64>, InternalForces) {
+        let mut mesh = grid(DVec3::ZERO, DVec3::X, DVec3::Y, [1.0, 0.7], [23, 17]);
+        for p in &mut mesh.positions {
+            p.z = 0.01 * next();
+        }
+        let nv = mesh.positions.len();
+        let topology = Topology::build(nv, &mesh.triangles).expect("a grid");
+        let part_of_tri: Vec<u32> = (0..mesh.triangles.len())
+            .map(|_| ((next() * n_parts as f64) as u32).min(n_parts as u32 - 1))
+            .collect();
+        let inv_mass: Vec<f64> = (0..nv)
+            .map(|i| if i % 29 == 3 { 0.0 } else { 1.0 })
+            .collect();
+        let mut tri_material = vec![Some(0u16); mesh.triangles.len()];
+        tri_material[7] = None;
+        let material = Material {
+            stretch_damping: 2e-5,
+            bend_damping: 3e-9,
+            ..Material::plate(0.2, 1e5, 0.3, 1e-3)
+        };
+        let f = InternalForces::build(
+            &mesh.triangles,
+            &tri_material,
+            &topology,
+            &mesh.positions,
+            &[material],
+            &inv_mass,
+            &part_of_tri,
+            n_parts,
+        )
+        .expect("valid elements");
+        (mesh.positions, inv_mass, f)
+    }
+
+    /// The step's estimates read the partitioned store in key order where
+    /// it lies: the same elements in the same order as the copy in key
+    /// order, and so the same bits of `omega_max`, `gamma_max` and the
+    /// per-material damping rates.
+    #[test]
+    fn key_order_read_in_place_is_the_copy_bit_for_bit() {
+        let mut next = crate::uniform_numbers(0x51ed_270b_1a2c_3d4e);
+        for n_parts in [1usize, 3, 11] {
+            let (rest, inv_mass, f) = grid_elements(n_parts, &mut next);
+            let mass: Vec<f64> = (inv_mass.iter())
+                .map(|&w| if w > 0.0 { 1.0 / w } else { 0.0 })
+                .collect();
+            let copy = f.key_ordered();
+            let (copied, in_place) = (copy.model(), f.model_in_key_order(&f.materials));
+            in_place.validate(rest.len()).expect("a valid order");
+            let words = |(e, m): (&StretchElement, &Material)| (e.to_words(), *m);
+            assert!((copied.stretch_iter().map(words)).eq(in_place.stretch_iter().map(words)));
+            let verts = |(e, _): (&HingeElement, &Material)| e.verts;
+            assert!((copied.hinge_iter().map(verts)).eq(in_place.hinge_iter().map(verts)));
+            let bits = |o: f64| o.to_bits();
+            assert_eq!(
+                bits(copied.max_frequency(&rest, &mass)),
+                bits(f.max_frequency(&Serial, &rest, &mass).unwrap()),
+                "{n_parts} parts"
+            );
+            let gamma = f.max_damping_rate(&Serial, &rest, &mass).unwrap();
+            assert!(gamma > 0.0, "a damped material");
+            assert_eq!(bits(copied.max_damping_rate(&rest, &mass)), bits(gamma));
+            assert_eq!(
+                f.damping_rates_of(0, &rest, &mass)[2].to_bits(),
+                gamma.to_bits()
+            );
+        }
+    }
 
     /// The incidence built by vertex equals, vertex by vertex, a sort of
     /// every dynamic corner's (vertex, class, key, corner, slot): the
@@ -1296,33 +1398,10 @@ mod tests {
     /// edge), whatever the partitions and pieces.
     #[test]
     fn incidence_is_every_dynamic_corner_in_global_key_order() {
-        let mesh = grid(DVec3::ZERO, DVec3::X, DVec3::Y, [1.0, 0.7], [23, 17]);
-        let nv = mesh.positions.len();
-        let topology = Topology::build(nv, &mesh.triangles).expect("a grid");
         let mut next = crate::uniform_numbers(0x9e37_79b9_7f4a_7c15);
         for n_parts in [1usize, 3, 11] {
-            let part_of_tri: Vec<u32> = (0..mesh.triangles.len())
-                .map(|_| ((next() * n_parts as f64) as u32).min(n_parts as u32 - 1))
-                .collect();
-            // A few kinematic vertices (no fold) and a triangle that is no
-            // cloth (no element).
-            let inv_mass: Vec<f64> = (0..nv)
-                .map(|i| if i % 29 == 3 { 0.0 } else { 1.0 })
-                .collect();
-            let mut tri_material = vec![Some(0u16); mesh.triangles.len()];
-            tri_material[7] = None;
-            let material = crate::materials::Material::plate(0.2, 1e5, 0.3, 1e-3);
-            let f = InternalForces::build(
-                &mesh.triangles,
-                &tri_material,
-                &topology,
-                &mesh.positions,
-                &[material],
-                &inv_mass,
-                &part_of_tri,
-                n_parts,
-            )
-            .expect("valid elements");
+            let (rest, inv_mass, f) = grid_elements(n_parts, &mut next);
+            let nv = rest.len();
             // Each element's rank in key order among its class.
             let mut stretch_rank = vec![0u32; f.stretch.len()];
             for (r, &s) in f.stretch_by_key.iter().enumerate() {

@@ -160,7 +160,9 @@ impl World {
 
     /// [`World::build_with`], estimating the internal step (two Lanczos
     /// iterations over the assembled rest system, most of the build) on
-    /// `exec`'s threads: the same world, bit for bit, on any number.
+    /// `exec`'s threads and ranks: the same world, bit for bit, on any
+    /// number. **Collective over ranks**: every rank builds the world, and
+    /// each assembles its share of the estimate's products.
     pub fn build_on<E: Executor>(
         spec: &WorldSpec,
         partitioner: &dyn Partitioner,
@@ -386,8 +388,8 @@ impl World {
         // omega_max` of the assembled rest system, and at most
         // `DAMPING_SAFETY` times its limit with damping (the root of
         // `h γ + h² ω² / 2 = 2`, `step.rs`).
-        let omega_max = internal.max_frequency(exec, &rest_all, &mass);
-        let gamma_max = internal.max_damping_rate(exec, &rest_all, &mass);
+        let omega_max = internal.max_frequency(exec, &rest_all, &mass)?;
+        let gamma_max = internal.max_damping_rate(exec, &rest_all, &mass)?;
         let h_el = match spec.time.internal_step {
             Some(h) if h > 0.0 && h.is_finite() => {
                 // A given step may not exceed the explicit stability limit

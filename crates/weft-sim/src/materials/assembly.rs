@@ -18,6 +18,10 @@ pub struct ElasticModel<'a> {
     pub hinge_material: &'a [u16],
     /// The material table.
     pub materials: &'a [Material],
+    /// The order the elements are summed in, as storage indices
+    /// `(stretch, hinges)`: a partitioned store read in global key order
+    /// without a copy of its elements. `None`: storage order.
+    pub order: Option<(&'a [u32], &'a [u32])>,
 }
 
 /// The positions (or velocities) of an element's vertices.
@@ -27,22 +31,36 @@ pub(super) fn gather<const N: usize>(x: &[DVec3], verts: [u32; N]) -> [DVec3; N]
 }
 
 impl<'a> ElasticModel<'a> {
-    /// Stretch elements with their materials.
-    pub fn stretch_iter(&self) -> impl Iterator<Item = (&'a StretchElement, &'a Material)> + 'a {
-        let materials = self.materials;
-        self.stretch
-            .iter()
-            .zip(self.stretch_material)
-            .map(move |(e, &m)| (e, &materials[m as usize]))
+    /// The stretch element `j`-th in summation order, with its material.
+    #[inline]
+    pub fn stretch_at(&self, j: usize) -> (&'a StretchElement, &'a Material) {
+        let i = self.order.map_or(j, |(s, _)| s[j] as usize);
+        (
+            &self.stretch[i],
+            &self.materials[self.stretch_material[i] as usize],
+        )
     }
 
-    /// Hinges with their materials.
+    /// The hinge `j`-th in summation order, with its material.
+    #[inline]
+    pub fn hinge_at(&self, j: usize) -> (&'a HingeElement, &'a Material) {
+        let i = self.order.map_or(j, |(_, h)| h[j] as usize);
+        (
+            &self.hinges[i],
+            &self.materials[self.hinge_material[i] as usize],
+        )
+    }
+
+    /// Stretch elements with their materials, in summation order.
+    pub fn stretch_iter(&self) -> impl Iterator<Item = (&'a StretchElement, &'a Material)> + 'a {
+        let model = *self;
+        (0..self.stretch.len()).map(move |j| model.stretch_at(j))
+    }
+
+    /// Hinges with their materials, in summation order.
     pub fn hinge_iter(&self) -> impl Iterator<Item = (&'a HingeElement, &'a Material)> + 'a {
-        let materials = self.materials;
-        self.hinges
-            .iter()
-            .zip(self.hinge_material)
-            .map(move |(e, &m)| (e, &materials[m as usize]))
+        let model = *self;
+        (0..self.hinges.len()).map(move |j| model.hinge_at(j))
     }
 
     /// Checks array lengths, vertex ids (`< num_vertices`) and every material.
@@ -58,6 +76,23 @@ impl<'a> ElasticModel<'a> {
                 self.hinges.len(),
                 self.hinge_material.len()
             )));
+        }
+        if let Some((s, h)) = self.order {
+            let outside = |order: &[u32], n: usize| order.iter().any(|&i| i as usize >= n);
+            if s.len() != self.stretch.len()
+                || h.len() != self.hinges.len()
+                || outside(s, self.stretch.len())
+                || outside(h, self.hinges.len())
+            {
+                return Err(MaterialError::Inconsistent(format!(
+                    "a summation order of {} stretch elements and {} hinges for {} and {}, \\
+                     or an index past them",
+                    s.len(),
+                    h.len(),
+                    self.stretch.len(),
+                    self.hinges.len()
+                )));
+            }
         }
         let nm = self.materials.len();
         if let Some(&id) = self

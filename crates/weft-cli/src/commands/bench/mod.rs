@@ -478,7 +478,20 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         * a.threads.iter().max().copied().unwrap_or(1).max(1);
     let build_pool = Threads::new(threads.iter().max().copied().unwrap_or(1).max(1))
         .context("cannot start the worker threads")?;
-    let world = build_pool.install(|| weft_par::build_world_on(&scene.world, &build_pool))?;
+    let world = match launch {
+        Launch::Local => {
+            build_pool.install(|| weft_par::build_world_on(&scene.world, &build_pool))?
+        }
+        // Every rank builds the world; the internal step's estimate is
+        // spread over them (collective).
+        #[cfg(feature = "mpi")]
+        Launch::Mpi(t) => {
+            let ranks = weft_par::Ranks::new(t, build_pool.clone());
+            build_pool.install(|| weft_par::build_world_on(&scene.world, &ranks))?
+        }
+        #[cfg(not(feature = "mpi"))]
+        Launch::Never(_) => unreachable!(),
+    };
     drop(build_pool);
     let hash = scene_hash(&scene, &world);
     // The world holds the meshes now: the scene's copies are not kept

@@ -3,11 +3,12 @@
 //!
 //! Failure behaviour, so that no rank ever waits for one that will not come:
 //!
-//! * **Setup** (scene, meshes, overrides, the world they build, and on
-//!   `--resume` the manifest and the checkpoint): every rank checks it, then
-//!   the ranks compare outcomes in one collective; if any failed, rank 0
-//!   prints the error (naming the rank when not all ranks saw it) and every
-//!   rank exits 1.
+//! * **Setup**, in two steps, each checked by every rank and then compared
+//!   in one collective (if any rank failed, rank 0 prints the error, naming
+//!   the rank when not all ranks saw it, and every rank exits 1): the scene,
+//!   meshes, overrides and on `--resume` the manifest; then the world they
+//!   build (its internal step's estimate shared by the ranks, a collective
+//!   every rank reaches) and on `--resume` the checkpoint.
 //! * **The run**: an engine error is the same on every rank (every rank holds
 //!   the same state), so rank 0 prints it and every rank exits 1. Any other
 //!   error (a write that failed on rank 0, a lost peer) is printed by the rank
@@ -46,39 +47,27 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     }
     let transport = MpiTransport::init().map_err(|e| anyhow::anyhow!("cannot start MPI: {e}"))?;
     let rank = transport.rank();
-    // Everything a rank could refuse before the run's first collective.
+    // Everything a rank could refuse alone before the run's first collective.
     let setup = prepare(&a).and_then(|(scene, out, resume)| {
         let threads = Threads::new(a.threads).context("cannot start the worker threads")?;
-        let workers = transport.size() * threads.threads();
-        let prepared =
-            threads.install(|| Prepared::new(&scene, &out, resume, workers, &threads))?;
-        Ok((scene, out, resume, prepared, threads))
+        Ok((scene, out, resume, threads))
     });
-    let failed = setup
-        .as_ref()
-        .err()
-        .map(crate::error_text)
-        .unwrap_or_default();
-    let all = transport
-        .all_gather(failed.into_bytes())
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    let errors: Vec<(usize, String)> = all
-        .into_iter()
-        .enumerate()
-        .filter(|(_, m)| !m.is_empty())
-        .map(|(r, m)| (r, String::from_utf8_lossy(&m).into_owned()))
-        .collect();
-    if let Some((r, text)) = errors.first() {
-        if rank == 0 {
-            if errors.len() == transport.size() && errors.iter().all(|(_, t)| t == text) {
-                eprintln!("error: {text}");
-            } else {
-                eprintln!("error: on rank {r}: {text}");
-            }
-        }
-        return Ok(ExitCode::from(1));
+    if let Some(code) = agree(&transport, &setup)? {
+        return Ok(code);
     }
-    let (scene, out, resume, prepared, threads) = setup?;
+    let (scene, out, resume, threads) = setup?;
+    // The world, whose internal step's estimate the ranks share (collective:
+    // every rank builds the same world from the same scene, so they fail or
+    // succeed alike), and on `--resume` the checkpoint, read by every rank.
+    let workers = transport.size() * threads.threads();
+    let prepared = {
+        let ranks = Ranks::new(&transport, threads.clone());
+        threads.install(|| Prepared::new(&scene, &out, resume, workers, &ranks))
+    };
+    if let Some(code) = agree(&transport, &prepared)? {
+        return Ok(code);
+    }
+    let prepared = prepared?;
     let job = new_job(&a, &scene, &out, resume)?;
     let exec = Ranks::new(&transport, threads.clone());
     let result = threads.install(move || execute_prepared(job, prepared, exec));
@@ -114,4 +103,36 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
             transport.abort(1)
         }
     }
+}
+
+/// **Collective.** Every rank's outcome of a step it could fail alone. When
+/// any rank failed, rank 0 prints the error (naming the rank unless every
+/// rank saw the same), and every rank gets the exit status 1 to end with.
+fn agree<T>(
+    transport: &MpiTransport,
+    outcome: &anyhow::Result<T>,
+) -> anyhow::Result<Option<ExitCode>> {
+    let failed = (outcome.as_ref().err())
+        .map(crate::error_text)
+        .unwrap_or_default();
+    let all = transport
+        .all_gather(failed.into_bytes())
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let errors: Vec<(usize, String)> = all
+        .into_iter()
+        .enumerate()
+        .filter(|(_, m)| !m.is_empty())
+        .map(|(r, m)| (r, String::from_utf8_lossy(&m).into_owned()))
+        .collect();
+    let Some((r, text)) = errors.first() else {
+        return Ok(None);
+    };
+    if transport.rank() == 0 {
+        if errors.len() == transport.size() && errors.iter().all(|(_, t)| t == text) {
+            eprintln!("error: {text}");
+        } else {
+            eprintln!("error: on rank {r}: {text}");
+        }
+    }
+    Ok(Some(ExitCode::from(1)))
 }
