@@ -228,48 +228,69 @@ impl VertexRanges {
         hinge: impl Fn(&HingeElement, &Material) -> [DVec3; 4] + Sync,
     ) -> Result<(), CommError> {
         chunks_on_ranks(exec, out, &self.bounds, &|k, own| {
-            let start = self.bounds[k];
-            let mut add = |v: u32, g: DVec3| {
-                if let Some(o) = (v as usize).checked_sub(start).and_then(|j| own.get_mut(j)) {
-                    *o += g;
-                }
-            };
-            let (s, h) = self.elements(k, model);
-            for (e, m) in s {
-                let g = stretch(e, m);
-                for c in 0..3 {
-                    add(e.verts[c], g[c]);
-                }
-            }
-            for (e, m) in h {
-                let g = hinge(e, m);
-                for c in 0..4 {
-                    add(e.verts[c], g[c]);
-                }
-            }
+            self.add_range(k, model, own, &stretch, &hinge)
         })
     }
 
-    /// [`ElasticModel::add_gradient`], range by range (one range: that
-    /// function itself, whose walk over the element slices is faster).
-    fn add_gradient<E: Executor>(
+    /// Range `k`'s part of `out += f(element)` per corner: `own` holds the
+    /// range's vertices.
+    fn add_range(
+        &self,
+        k: usize,
+        model: &ElasticModel,
+        own: &mut [DVec3],
+        stretch: impl Fn(&StretchElement, &Material) -> [DVec3; 3],
+        hinge: impl Fn(&HingeElement, &Material) -> [DVec3; 4],
+    ) {
+        let start = self.bounds[k];
+        let mut add = |v: u32, g: DVec3| {
+            if let Some(o) = (v as usize).checked_sub(start).and_then(|j| own.get_mut(j)) {
+                *o += g;
+            }
+        };
+        let (s, h) = self.elements(k, model);
+        for (e, m) in s {
+            let g = stretch(e, m);
+            for c in 0..3 {
+                add(e.verts[c], g[c]);
+            }
+        }
+        for (e, m) in h {
+            let g = hinge(e, m);
+            for c in 0..4 {
+                add(e.verts[c], g[c]);
+            }
+        }
+    }
+
+    /// `out[i] = (g(xp)_i − g(xm)_i) · scale[i]` with `g` the assembled
+    /// gradient: a Hessian-vector product by central differences. Each range
+    /// assembles both gradients of its own vertices and writes its part of
+    /// `out`, so ranks gather `out` only: one all-gather a product.
+    fn gradient_difference<E: Executor>(
         &self,
         exec: &E,
         model: &ElasticModel,
-        x: &[DVec3],
-        grad: &mut [DVec3],
+        (xp, xm): (&[DVec3], &[DVec3]),
+        scale: &[f64],
+        out: &mut [DVec3],
     ) -> Result<(), CommError> {
-        if self.bounds.len() <= 2 {
-            model.add_gradient(x, grad);
-            return Ok(());
-        }
-        self.assemble(
-            exec,
-            model,
-            grad,
-            |e, m| e.gradient(&gather(x, e.verts), m),
-            |e, m| e.gradient(&gather(x, e.verts), m.bending_stiffness),
-        )
+        chunks_on_ranks(exec, out, &self.bounds, &|k, own| {
+            let (mut gp, mut gm) = (vec![DVec3::ZERO; own.len()], vec![DVec3::ZERO; own.len()]);
+            for (x, g) in [(xp, &mut gp), (xm, &mut gm)] {
+                self.add_range(
+                    k,
+                    model,
+                    g,
+                    |e, m| e.gradient(&gather(x, e.verts), m),
+                    |e, m| e.gradient(&gather(x, e.verts), m.bending_stiffness),
+                );
+            }
+            let scale = &scale[self.bounds[k]..];
+            for (j, o) in own.iter_mut().enumerate() {
+                *o = (gp[j] - gm[j]) * scale[j];
+            }
+        })
     }
 
     /// [`ElasticModel::add_damping_force`], range by range (one range:
@@ -369,7 +390,11 @@ fn model_max_frequency<E: Executor>(
     let n = rest.len();
     let ranges = ranges_for(exec, model, n);
     let (mut xp, mut xm) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
-    let (mut gp, mut gm) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
+    let (mut gp, mut gm) = match ranges.bounds.len() {
+        ..=2 => (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]),
+        _ => (Vec::new(), Vec::new()),
+    };
+    let mut scale = vec![0.0; n];
     let lambda = lanczos_max(&d, |u, out| {
         // Physical direction D u, scaled so the largest displacement is FD_REL · ell.
         let umax = u
@@ -385,12 +410,20 @@ fn model_max_frequency<E: Executor>(
             xp[i] = rest[i] + u[i] * (d[i] * s);
             xm[i] = rest[i] - u[i] * (d[i] * s);
         }
+        for i in 0..n {
+            scale[i] = d[i] / (2.0 * s);
+        }
+        if ranges.bounds.len() > 2 {
+            return ranges.gradient_difference(exec, model, (&xp, &xm), &scale, out);
+        }
+        // One range: the serial assembly, whose walk over the element
+        // slices is faster.
         gp.fill(DVec3::ZERO);
         gm.fill(DVec3::ZERO);
-        ranges.add_gradient(exec, model, &xp, &mut gp)?;
-        ranges.add_gradient(exec, model, &xm, &mut gm)?;
+        model.add_gradient(&xp, &mut gp);
+        model.add_gradient(&xm, &mut gm);
         for i in 0..n {
-            out[i] = (gp[i] - gm[i]) * (d[i] / (2.0 * s));
+            out[i] = (gp[i] - gm[i]) * scale[i];
         }
         Ok(())
     })?;
@@ -710,7 +743,7 @@ mod tests {
         v.iter().map(|p| p.to_array().map(f64::to_bits)).collect()
     }
 
-    /// Range by range, the assembled gradient, damping force and Gershgorin
+    /// Range by range, the gradient's central difference, the damping force and the Gershgorin
     /// bound have the serial assembly's bits, on any number of ranges, with
     /// the vertices numbered along the grid or at random.
     #[test]
@@ -726,6 +759,12 @@ mod tests {
             let (mut grad, mut force) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
             model.add_gradient(&x, &mut grad);
             model.add_damping_force(&x, &v, &mut force);
+            // A central difference of the gradient between x and rest.
+            let scale: Vec<f64> = (0..n).map(|_| rng.uniform(0.5, 2.0)).collect();
+            let mut at_rest = vec![DVec3::ZERO; n];
+            model.add_gradient(rest, &mut at_rest);
+            let difference: Vec<DVec3> =
+                (0..n).map(|i| (grad[i] - at_rest[i]) * scale[i]).collect();
             let masses = vec![1e-4; n];
             let bound = model.gershgorin_bound(rest, &masses);
             for tasks in [1, 2, 3, 5, 8, 64] {
@@ -739,8 +778,8 @@ mod tests {
                 assert!(b[0] == 0 && b[b.len() - 1] == n, "{what}: {b:?}");
                 assert!(b.windows(2).all(|w| w[0] < w[1]), "{what}: {b:?}");
                 let mut g = vec![DVec3::ZERO; n];
-                ranges.add_gradient(&Serial, &model, &x, &mut g).unwrap();
-                assert_eq!(bits(&g), bits(&grad), "{what}: gradient");
+                (ranges.gradient_difference(&Serial, &model, (&x, rest), &scale, &mut g)).unwrap();
+                assert_eq!(bits(&g), bits(&difference), "{what}: gradient difference");
                 let mut f = vec![DVec3::ZERO; n];
                 ranges
                     .add_damping_force(&Serial, &model, &x, &v, &mut f)
