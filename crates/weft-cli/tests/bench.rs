@@ -106,6 +106,9 @@ fn bench_reports_throughput_and_efficiency_from_a_checkpoint() {
     let t0 = positive(&j, "start_time");
     assert!((0.1..0.1 + window + 1e-12).contains(&t0), "start {t0}");
     assert!(j["start_active_stencils"].as_u64().unwrap() > 0, "{j}");
+    // The world is built once, its step estimated on the most threads asked.
+    positive(&j, "build_seconds");
+    assert_eq!(j["build_workers"], serde_json::json!([1, 2]), "{j}");
     positive(&j, "internal_evaluations_per_window");
     assert!(positive(&j, "narrow_queries_per_window") >= 1.0);
     assert!(j["rollbacks_per_window"].as_f64().unwrap() >= 0.0);

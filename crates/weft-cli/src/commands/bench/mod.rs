@@ -298,6 +298,12 @@ pub struct BenchReport {
     pub window_seconds: f64,
     pub steps_per_window: u64,
     pub internal_step: f64,
+    /// Wall seconds this process (rank 0 under `mpirun`) took to build the
+    /// world, most of it the internal step's estimate, which the
+    /// `build_workers` (ranks, threads per rank) shared. Not in the windows'
+    /// times: every run of a bench starts from the one world.
+    pub build_seconds: f64,
+    pub build_workers: [usize; 2],
     /// Simulated time, window index and active (penalty) stencils at the checkpoint.
     pub start_time: f64,
     pub start_window: u64,
@@ -478,6 +484,8 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         * a.threads.iter().max().copied().unwrap_or(1).max(1);
     let build_pool = Threads::new(threads.iter().max().copied().unwrap_or(1).max(1))
         .context("cannot start the worker threads")?;
+    let build_threads = build_pool.threads();
+    let build_clock = std::time::Instant::now();
     let world = match launch {
         Launch::Local => {
             build_pool.install(|| weft_par::build_world_on(&scene.world, &build_pool))?
@@ -492,6 +500,7 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         #[cfg(not(feature = "mpi"))]
         Launch::Never(_) => unreachable!(),
     };
+    let build_seconds = build_clock.elapsed().as_secs_f64();
     drop(build_pool);
     let hash = scene_hash(&scene, &world);
     // The world holds the meshes now: the scene's copies are not kept
@@ -547,6 +556,8 @@ fn bench(a: &BenchArgs, launch: Launch<'_>) -> anyhow::Result<ExitCode> {
         window_seconds: lattice.seconds(lattice.window()),
         steps_per_window: lattice.steps_per_window,
         internal_step: lattice.h_el(),
+        build_seconds,
+        build_workers: [mpi_ranks.unwrap_or(1), build_threads],
         start_time: lattice.seconds(start.tick),
         start_window: start.window_index,
         start_active_stencils: start.layers.len(),
@@ -1253,6 +1264,11 @@ fn table(r: &BenchReport) -> String {
         s,
         "time        windows of {:.6e} s = {} internal steps of {:.4e} s",
         r.window_seconds, r.steps_per_window, r.internal_step
+    );
+    let _ = writeln!(
+        s,
+        "build       the world in {:.2} s, its internal step estimated on {} rank(s) × {} thread(s)",
+        r.build_seconds, r.build_workers[0], r.build_workers[1]
     );
     let _ = writeln!(
         s,
