@@ -200,7 +200,7 @@ impl HingeElement {
     }
 
     /// `dV/dx` for the four vertices (the gradient, not the force).
-    #[inline]
+    #[inline(always)]
     pub fn gradient(&self, x: &[DVec3; 4], k_b: f64) -> [DVec3; 4] {
         let (theta, g) = angle_and_gradient(x);
         let s = 2.0 * k_b * self.weight * wrap(theta - self.rest_angle);
@@ -209,7 +209,7 @@ impl HingeElement {
 
     /// Hinge-rate damping force `-2 bend_damping w θ̇ dθ/dx` (a force). Sums to
     /// zero, has zero torque and vanishes for rigid motion.
-    #[inline]
+    #[inline(always)]
     pub fn damping_force(&self, x: &[DVec3; 4], v: &[DVec3; 4], m: &Material) -> [DVec3; 4] {
         let c = m.bend_damping;
         if c == 0.0 {

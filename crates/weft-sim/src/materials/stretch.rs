@@ -143,7 +143,7 @@ impl StretchElement {
     }
 
     /// `dV/dx` for the three vertices (the gradient, not the force).
-    #[inline]
+    #[inline(always)]
     pub fn gradient(&self, x: &[DVec3; 3], m: &Material) -> [DVec3; 3] {
         let (lambda, mu) = m.lame();
         let (f0, f1) = self.deformation(x);
@@ -165,7 +165,7 @@ impl StretchElement {
     /// Viscous membrane force (a force, not a gradient) for vertex velocities `v`:
     /// stress `stretch_damping · (2 mu Ġ + lambda tr(Ġ) I)`, `Ġ = sym(F^T Ḟ)`.
     /// Sums to zero, has zero torque and vanishes for rigid motion.
-    #[inline]
+    #[inline(always)]
     pub fn damping_force(&self, x: &[DVec3; 3], v: &[DVec3; 3], m: &Material) -> [DVec3; 3] {
         let c = m.stretch_damping;
         if c == 0.0 {
