@@ -393,7 +393,8 @@ fn rank_slots_fold_the_bits_of_the_world_slots() {
 /// estimates and their Gershgorin bound are assembled range by range, each
 /// rank its block of ranges on its threads, the blocks gathered: the same
 /// `omega_max`, damping rate and internal step, bit for bit, as one memory,
-/// on any number of ranks and threads, with the ranks' shares sent.
+/// on any number of ranks and threads (also when the ranks' thread counts
+/// differ), with the ranks' shares sent.
 #[test]
 fn the_step_estimate_spread_over_ranks_has_one_memorys_bits() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/crumple.toml");
@@ -401,10 +402,13 @@ fn the_step_estimate_spread_over_ranks_has_one_memorys_bits() {
     let one = weft_par::build_world(&scene.world).unwrap();
     assert!(one.damping_rate > 0.0, "a damped cloth");
     let step = |w: &World| [w.omega_max, w.damping_rate, w.lattice.h_el()].map(f64::to_bits);
-    for (ranks, threads) in [(2, 1), (3, 2), (5, 1)] {
+    // Threads per rank; the last case's differ, as `--threads 0` may on
+    // hosts of different sizes.
+    for threads in [&[1, 1][..], &[2, 2, 2], &[1; 5], &[1, 3, 2]] {
+        let ranks = threads.len();
         let built = ranks::in_process(
             ranks,
-            |_| weft_par::Threads::new(threads).unwrap(),
+            |r| weft_par::Threads::new(threads[r]).unwrap(),
             |exec| {
                 let w = weft_par::build_world_on(&scene.world, &exec).unwrap();
                 (step(&w), weft_sim::Executor::traffic(&exec))
@@ -414,11 +418,12 @@ fn the_step_estimate_spread_over_ranks_has_one_memorys_bits() {
             assert_eq!(
                 *bits,
                 step(&one),
-                "rank {rank} of {ranks} × {threads} threads"
+                "rank {rank} of {ranks}, threads {threads:?}"
             );
-            // An all-gather per assembly: two per Lanczos step of the
-            // frequency, one per step of the damping rate.
-            assert!(traffic.collectives > 20, "rank {rank}: {traffic:?}");
+            // An all-gather per Lanczos step of either iteration (at least
+            // ten each before the first convergence check), one for the
+            // threads and one for the bound.
+            assert!(traffic.collectives >= 23, "rank {rank}: {traffic:?}");
         }
     }
 }

@@ -1372,6 +1372,15 @@ mod tests {
             let copy = f.key_ordered();
             let (copied, in_place) = (copy.model(), f.model_in_key_order(&f.materials));
             in_place.validate(rest.len()).expect("a valid order");
+            // An order that repeats an element (and so leaves one out) is refused.
+            let mut twice = f.stretch_by_key.clone();
+            twice[1] = twice[0];
+            let repeats = ElasticModel {
+                order: Some((&twice, &f.hinge_by_key)),
+                ..in_place
+            };
+            let refused = repeats.validate(rest.len()).unwrap_err().to_string();
+            assert!(refused.contains("not an order of all"), "{refused}");
             let words = |(e, m): (&StretchElement, &Material)| (e.to_words(), *m);
             assert!((copied.stretch_iter().map(words)).eq(in_place.stretch_iter().map(words)));
             let verts = |(e, _): (&HingeElement, &Material)| e.verts;

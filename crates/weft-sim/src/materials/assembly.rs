@@ -24,6 +24,16 @@ pub struct ElasticModel<'a> {
     pub order: Option<(&'a [u32], &'a [u32])>,
 }
 
+/// Whether `order` holds each of `0..n` exactly once.
+fn is_permutation(order: &[u32], n: usize) -> bool {
+    let mut seen = vec![false; n];
+    order.len() == n
+        && order.iter().all(|&i| {
+            seen.get_mut(i as usize)
+                .is_some_and(|s| !std::mem::replace(s, true))
+        })
+}
+
 /// The positions (or velocities) of an element's vertices.
 #[inline(always)]
 pub(super) fn gather<const N: usize>(x: &[DVec3], verts: [u32; N]) -> [DVec3; N] {
@@ -78,20 +88,17 @@ impl<'a> ElasticModel<'a> {
             )));
         }
         if let Some((s, h)) = self.order {
-            let outside = |order: &[u32], n: usize| order.iter().any(|&i| i as usize >= n);
-            if s.len() != self.stretch.len()
-                || h.len() != self.hinges.len()
-                || outside(s, self.stretch.len())
-                || outside(h, self.hinges.len())
-            {
-                return Err(MaterialError::Inconsistent(format!(
-                    "a summation order of {} stretch elements and {} hinges for {} and {}, \\
-                     or an index past them",
-                    s.len(),
-                    h.len(),
-                    self.stretch.len(),
-                    self.hinges.len()
-                )));
+            for (what, order, n) in [
+                ("stretch elements", s, self.stretch.len()),
+                ("hinges", h, self.hinges.len()),
+            ] {
+                if !is_permutation(order, n) {
+                    return Err(MaterialError::Inconsistent(format!(
+                        "the summation order of the {what} ({} indices) is not an order of \
+                         all {n} of them",
+                        order.len()
+                    )));
+                }
             }
         }
         let nm = self.materials.len();

@@ -9,7 +9,7 @@
 //! On an executor with threads or ranks, each product is assembled range by
 //! range of vertices (`VertexRanges`) with the serial assembly's bits, one
 //! range per thread of every rank; over ranks each rank assembles its block
-//! of ranges and the blocks are all-gathered (`chunks_on_ranks`).
+//! of ranges and the blocks are all-gathered (`ranges_on_ranks`).
 //! [`ElasticModel::gershgorin_bound`] gives the rigorous upper bound
 //! `sqrt(max_row Σ_e Σ_col |K^e| d_i d_j)` from finite-difference element Hessians
 //! (typically 5–15 % above `omega_max` on cloth grids); it is the safety check: a
@@ -227,7 +227,7 @@ impl VertexRanges {
         stretch: impl Fn(&StretchElement, &Material) -> [DVec3; 3] + Sync,
         hinge: impl Fn(&HingeElement, &Material) -> [DVec3; 4] + Sync,
     ) -> Result<(), CommError> {
-        chunks_on_ranks(exec, out, &self.bounds, &|k, own| {
+        ranges_on_ranks(exec, out, &self.bounds, &|k, own| {
             self.add_range(k, model, own, &stretch, &hinge)
         })
     }
@@ -275,7 +275,7 @@ impl VertexRanges {
         scale: &[f64],
         out: &mut [DVec3],
     ) -> Result<(), CommError> {
-        chunks_on_ranks(exec, out, &self.bounds, &|k, own| {
+        ranges_on_ranks(exec, out, &self.bounds, &|k, own| {
             let (mut gp, mut gm) = (vec![DVec3::ZERO; own.len()], vec![DVec3::ZERO; own.len()]);
             for (x, g) in [(xp, &mut gp), (xm, &mut gm)] {
                 self.add_range(
@@ -323,12 +323,12 @@ impl VertexRanges {
 /// contiguous blocks of chunks ([`place_in_blocks`]: the ranges are cut
 /// where the work is shared equally), and each rank's block is
 /// all-gathered with its exact bits. Every rank must start from the same
-/// `data`. **Collective over ranks.**
+/// `data` and `bounds`. **Collective over ranks.**
 ///
 /// Why: every rank builds the world, and the step's two Lanczos estimates
 /// were most of a run's start, the same on every rank (measured at 50k over
 /// 32 ranks: about 20 s of CPU each, against 1.1 s for a window).
-fn chunks_on_ranks<E: Executor>(
+fn ranges_on_ranks<E: Executor>(
     exec: &E,
     data: &mut [DVec3],
     bounds: &[usize],
@@ -354,6 +354,12 @@ fn chunks_on_ranks<E: Executor>(
         bounds[first]..bounds[end]
     };
     let all = exec.all_gather_vectors(&data[block(me)])?;
+    if all.len() != ranks {
+        return Err(CommError(format!(
+            "rank {me}: {} blocks of the internal step's estimate gathered from {ranks} ranks",
+            all.len()
+        )));
+    }
     for (r, part) in (0..ranks as u32).zip(all) {
         let place = block(r);
         if part.len() != place.len() {
@@ -371,9 +377,23 @@ fn chunks_on_ranks<E: Executor>(
 }
 
 /// The ranges of vertices a step estimate on `exec` assembles: one per
-/// thread of every rank.
-fn ranges_for<E: Executor>(exec: &E, model: &ElasticModel, n: usize) -> VertexRanges {
-    VertexRanges::new(model, n, exec.ranks() * exec.threads_per_rank())
+/// thread of every rank. Over ranks, as many per rank as the most threads
+/// of any rank (one all-gather): a rank's thread count may come from its
+/// own host (`--threads 0`), and every rank must cut the same ranges. (The
+/// ranks' blocks would mostly agree anyway, as the cuts at multiples of a
+/// rank's share of the work are the same for any number of ranges per
+/// rank, but not where fewer vertices than ranges clamp the count.)
+fn ranges_for<E: Executor>(
+    exec: &E,
+    model: &ElasticModel,
+    n: usize,
+) -> Result<VertexRanges, CommError> {
+    let mut threads = exec.threads_per_rank();
+    if exec.ranks() > 1 {
+        let all = exec.all_gather_vectors(&[DVec3::new(threads as f64, 0.0, 0.0)])?;
+        threads = (all.iter().flatten()).fold(threads, |t, c| t.max(c.x as usize));
+    }
+    Ok(VertexRanges::new(model, n, exec.ranks() * threads))
 }
 
 fn model_max_frequency<E: Executor>(
@@ -388,7 +408,7 @@ fn model_max_frequency<E: Executor>(
         return Ok(0.0);
     }
     let n = rest.len();
-    let ranges = ranges_for(exec, model, n);
+    let ranges = ranges_for(exec, model, n)?;
     let (mut xp, mut xm) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
     let (mut gp, mut gm) = match ranges.bounds.len() {
         ..=2 => (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]),
@@ -448,7 +468,7 @@ fn model_max_damping_rate<E: Executor>(
 ) -> Result<f64, CommError> {
     let d = inv_sqrt_masses(masses);
     let n = rest.len();
-    let ranges = ranges_for(exec, model, n);
+    let ranges = ranges_for(exec, model, n)?;
     let mut v = vec![DVec3::ZERO; n];
     let mut f = vec![DVec3::ZERO; n];
     let gamma = lanczos_max(&d, |u, out| {
@@ -506,7 +526,7 @@ fn add_abs_rows<const N: usize>(
 /// (finite-difference element Hessians), range by range of vertices (each
 /// row's sum in element order, as one range has it; the largest row is
 /// the same whatever order the ranges come in). Over ranks each rank sums
-/// the rows of its block of ranges (as [`chunks_on_ranks`] places them)
+/// the rows of its block of ranges (as [`ranges_on_ranks`] places them)
 /// and the ranks' largest rows are gathered: the largest of all, exactly.
 /// **Collective over ranks.**
 fn model_gershgorin_bound<E: Executor>(
@@ -542,12 +562,16 @@ fn model_gershgorin_bound<E: Executor>(
     if exec.ranks() < 2 {
         return Ok(mine.sqrt());
     }
+    let all = exec.all_gather_vectors(&[DVec3::new(mine, 0.0, 0.0)])?;
+    if all.len() != exec.ranks() {
+        return Err(CommError(format!(
+            "rank {me}: {} largest rows of the step's bound gathered from {} ranks",
+            all.len(),
+            exec.ranks()
+        )));
+    }
     let mut largest = 0.0f64;
-    for (r, got) in exec
-        .all_gather_vectors(&[DVec3::new(mine, 0.0, 0.0)])?
-        .iter()
-        .enumerate()
-    {
+    for (r, got) in all.iter().enumerate() {
         let [row] = got[..] else {
             return Err(CommError(format!(
                 "rank {me}: rank {r} sent {} largest rows of the step's bound, not one",

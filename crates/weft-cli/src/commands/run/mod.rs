@@ -394,19 +394,19 @@ pub(crate) struct Prepared {
 impl Prepared {
     /// Builds `scene`'s world for `workers` = ranks × threads (the
     /// automatic partition count depends on it, the results do not), with
-    /// the internal step estimated on `local`'s threads (this rank's; the
-    /// same bits on any number) and, when `resume`, reads `out`'s
-    /// checkpoint.
+    /// the internal step estimated on `exec`'s threads and ranks (the same
+    /// bits on any number; collective over ranks) and, when `resume`, reads
+    /// `out`'s checkpoint.
     pub(crate) fn new<E: Executor>(
         scene: &Scene,
         out: &Path,
         resume: bool,
         workers: usize,
-        local: &E,
+        exec: &E,
     ) -> anyhow::Result<Self> {
         let mut spec = scene.world.clone();
         spec.workers = workers;
-        let world = weft_par::build_world_on(&spec, local)?;
+        let world = weft_par::build_world_on(&spec, exec)?;
         let hash = scene_hash(scene, &world);
         let checkpoint = match resume {
             true => Some(read_resumable(out, &hash)?),

@@ -8,7 +8,8 @@
 //!   the rank when not all ranks saw it, and every rank exits 1): the scene,
 //!   meshes, overrides and on `--resume` the manifest; then the world they
 //!   build (its internal step's estimate shared by the ranks, a collective
-//!   every rank reaches) and on `--resume` the checkpoint.
+//!   every rank reaches), on `--resume` the checkpoint, and the job (signal
+//!   handlers, the progress interval).
 //! * **The run**: an engine error is the same on every rank (every rank holds
 //!   the same state), so rank 0 prints it and every rank exits 1. Any other
 //!   error (a write that failed on rank 0, a lost peer) is printed by the rank
@@ -58,17 +59,18 @@ pub fn run(a: RunArgs) -> anyhow::Result<ExitCode> {
     let (scene, out, resume, threads) = setup?;
     // The world, whose internal step's estimate the ranks share (collective:
     // every rank builds the same world from the same scene, so they fail or
-    // succeed alike), and on `--resume` the checkpoint, read by every rank.
+    // succeed alike), on `--resume` the checkpoint, read by every rank, and
+    // the job (signal handlers, the progress interval from the environment).
     let workers = transport.size() * threads.threads();
     let prepared = {
         let ranks = Ranks::new(&transport, threads.clone());
         threads.install(|| Prepared::new(&scene, &out, resume, workers, &ranks))
-    };
+    }
+    .and_then(|prepared| Ok((prepared, new_job(&a, &scene, &out, resume)?)));
     if let Some(code) = agree(&transport, &prepared)? {
         return Ok(code);
     }
-    let prepared = prepared?;
-    let job = new_job(&a, &scene, &out, resume)?;
+    let (prepared, job) = prepared?;
     let exec = Ranks::new(&transport, threads.clone());
     let result = threads.install(move || execute_prepared(job, prepared, exec));
     if let Some(path) = &a.trace {
