@@ -779,36 +779,16 @@ impl InternalForces {
         e
     }
 
-    /// A copy of all elements in global key order, for assembled quantities
-    /// (the stable step, the damping limit) whose sums must not depend on the
-    /// partitioning; [`KeyOrdered::model`] views it.
-    pub fn key_ordered(&self) -> KeyOrdered {
-        self.assert_whole("the elements in key order");
-        let pick = |order: &[u32], material: &[u16]| -> Vec<u16> {
-            order.iter().map(|&i| material[i as usize]).collect()
-        };
-        KeyOrdered {
-            stretch: self
-                .stretch_by_key
-                .iter()
-                .map(|&i| self.stretch[i as usize])
-                .collect(),
-            stretch_material: pick(&self.stretch_by_key, &self.stretch_material),
-            hinges: self
-                .hinge_by_key
-                .iter()
-                .map(|&i| self.hinges[i as usize])
-                .collect(),
-            hinge_material: pick(&self.hinge_by_key, &self.hinge_material),
-            materials: self.materials.clone(),
-        }
+    /// Every element, read in global key order where it is stored, for
+    /// assembled quantities (the stable step, the damping limit) whose sums
+    /// must not depend on the partitioning. (A copy of the elements in that
+    /// order was a tenth of a rank's heap at the start of a run over ranks.)
+    pub fn model(&self) -> ElasticModel<'_> {
+        self.model_in_key_order(&self.materials)
     }
 
-    /// Every element, read in global key order where it is stored (the
-    /// sums of [`InternalForces::key_ordered`]'s copy, without the copy:
-    /// at the start of a run over ranks, before a rank keeps its part,
-    /// that copy was a tenth of its heap), with the material table
-    /// `materials` (this store's, or one with some dampings left out).
+    /// [`InternalForces::model`] with the material table `materials` (this
+    /// store's, or one with some dampings left out).
     fn model_in_key_order<'a>(&'a self, materials: &'a [Material]) -> ElasticModel<'a> {
         self.assert_whole("the elements in key order");
         ElasticModel {
@@ -830,7 +810,7 @@ impl InternalForces {
         rest: &[DVec3],
         mass: &[f64],
     ) -> Result<f64, CommError> {
-        (self.model_in_key_order(&self.materials)).max_frequency_on(exec, rest, mass)
+        self.model().max_frequency_on(exec, rest, mass)
     }
 
     /// `gamma_max = λ_max(M⁻¹C)` (1/s) of the damping operator at the rest
@@ -845,7 +825,7 @@ impl InternalForces {
         if !self.damped {
             return Ok(0.0);
         }
-        (self.model_in_key_order(&self.materials)).max_damping_rate_on(exec, rest, mass)
+        self.model().max_damping_rate_on(exec, rest, mass)
     }
 
     /// The damping rate of material `m`'s elements alone, keeping only its
@@ -1245,7 +1225,8 @@ pub struct Moved {
     pub words: Vec<f64>,
 }
 
-/// All elements in global key order (see [`InternalForces::key_ordered`]).
+/// An owned set of elements with their materials, in the order they are
+/// summed (tests build their models from one).
 #[derive(Clone, Debug)]
 pub struct KeyOrdered {
     pub stretch: Vec<StretchElement>,
@@ -1357,8 +1338,27 @@ mod tests {
         (mesh.positions, inv_mass, f)
     }
 
+    /// A copy of every element in global key order: the reference the
+    /// view in place is held to.
+    fn copy_in_key_order(f: &InternalForces) -> KeyOrdered {
+        let pick = |order: &[u32], material: &[u16]| -> Vec<u16> {
+            order.iter().map(|&i| material[i as usize]).collect()
+        };
+        KeyOrdered {
+            stretch: (f.stretch_by_key.iter())
+                .map(|&i| f.stretch[i as usize])
+                .collect(),
+            stretch_material: pick(&f.stretch_by_key, &f.stretch_material),
+            hinges: (f.hinge_by_key.iter())
+                .map(|&i| f.hinges[i as usize])
+                .collect(),
+            hinge_material: pick(&f.hinge_by_key, &f.hinge_material),
+            materials: f.materials.clone(),
+        }
+    }
+
     /// The step's estimates read the partitioned store in key order where
-    /// it lies: the same elements in the same order as the copy in key
+    /// it lies: the same elements in the same order as a copy in key
     /// order, and so the same bits of `omega_max`, `gamma_max` and the
     /// per-material damping rates.
     #[test]
@@ -1369,8 +1369,8 @@ mod tests {
             let mass: Vec<f64> = (inv_mass.iter())
                 .map(|&w| if w > 0.0 { 1.0 / w } else { 0.0 })
                 .collect();
-            let copy = f.key_ordered();
-            let (copied, in_place) = (copy.model(), f.model_in_key_order(&f.materials));
+            let copy = copy_in_key_order(&f);
+            let (copied, in_place) = (copy.model(), f.model());
             in_place.validate(rest.len()).expect("a valid order");
             // An order that repeats an element (and so leaves one out) is refused.
             let mut twice = f.stretch_by_key.clone();

@@ -65,8 +65,7 @@ fn event_loop_without_contact_is_leapfrog_bitwise() {
 
     // Reference leapfrog on a copy of the initial state.
     let w0 = engine.world.clone();
-    let elements = w0.internal.key_ordered();
-    let model = elements.model();
+    let model = w0.internal.model();
     let h = w0.lattice.h_el();
     let (mut x, mut v) = (w0.x.clone(), w0.v.clone());
     let windows = 3;

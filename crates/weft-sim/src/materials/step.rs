@@ -388,12 +388,37 @@ fn ranges_for<E: Executor>(
     model: &ElasticModel,
     n: usize,
 ) -> Result<VertexRanges, CommError> {
-    let mut threads = exec.threads_per_rank();
-    if exec.ranks() > 1 {
-        let all = exec.all_gather_vectors(&[DVec3::new(threads as f64, 0.0, 0.0)])?;
-        threads = (all.iter().flatten()).fold(threads, |t, c| t.max(c.x as usize));
+    let threads = largest_over_ranks(exec, exec.threads_per_rank() as f64, "thread counts")?;
+    Ok(VertexRanges::new(model, n, exec.ranks() * threads as usize))
+}
+
+/// **Collective over ranks** (one all-gather, none on one rank): the
+/// largest of every rank's `value` (NaN ignored, as `f64::max` does; exact
+/// in any order). `what` names the values in an error.
+fn largest_over_ranks<E: Executor>(exec: &E, value: f64, what: &str) -> Result<f64, CommError> {
+    if exec.ranks() < 2 {
+        return Ok(value);
     }
-    Ok(VertexRanges::new(model, n, exec.ranks() * threads))
+    let me = exec.rank();
+    let all = exec.all_gather_vectors(&[DVec3::new(value, 0.0, 0.0)])?;
+    if all.len() != exec.ranks() {
+        return Err(CommError(format!(
+            "rank {me}: {what} gathered from {} of {} ranks",
+            all.len(),
+            exec.ranks()
+        )));
+    }
+    let mut largest = value;
+    for (r, got) in all.iter().enumerate() {
+        let [one] = got[..] else {
+            return Err(CommError(format!(
+                "rank {me}: rank {r} sent {} of the {what}, not one",
+                got.len()
+            )));
+        };
+        largest = largest.max(one.x);
+    }
+    Ok(largest)
 }
 
 fn model_max_frequency<E: Executor>(
@@ -429,8 +454,6 @@ fn model_max_frequency<E: Executor>(
         for i in 0..n {
             xp[i] = rest[i] + u[i] * (d[i] * s);
             xm[i] = rest[i] - u[i] * (d[i] * s);
-        }
-        for i in 0..n {
             scale[i] = d[i] / (2.0 * s);
         }
         if ranges.bounds.len() > 2 {
@@ -559,28 +582,7 @@ fn model_gershgorin_bound<E: Executor>(
     });
     // Rows not summed here are 0, below every sum of absolute values.
     let mine = rows.iter().fold(0.0f64, |a, &r| a.max(r));
-    if exec.ranks() < 2 {
-        return Ok(mine.sqrt());
-    }
-    let all = exec.all_gather_vectors(&[DVec3::new(mine, 0.0, 0.0)])?;
-    if all.len() != exec.ranks() {
-        return Err(CommError(format!(
-            "rank {me}: {} largest rows of the step's bound gathered from {} ranks",
-            all.len(),
-            exec.ranks()
-        )));
-    }
-    let mut largest = 0.0f64;
-    for (r, got) in all.iter().enumerate() {
-        let [row] = got[..] else {
-            return Err(CommError(format!(
-                "rank {me}: rank {r} sent {} largest rows of the step's bound, not one",
-                got.len()
-            )));
-        };
-        largest = largest.max(row.x);
-    }
-    Ok(largest.sqrt())
+    Ok(largest_over_ranks(exec, mine, "largest rows of the step's bound")?.sqrt())
 }
 
 /// Deterministic start vector component in [-1, 1) (splitmix64 of the index).
